@@ -1,0 +1,116 @@
+"""Training configuration: one dataclass, presets, and a CLI where every field is a flag."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import types
+import typing
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Config:
+    """Every field is a ``--flag`` of ``python -m minsubdt_jax.train`` (underscores become dashes)."""
+
+    env: str = "walker"  # hopper | walker | halfcheetah
+    dataset: str = "random"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
+    returns: str = "subdom"  # subdom: MinSubDT surrogate returns | true: the dataset's rewards (plain DT)
+    seed: int = 0
+    steps: int = 3000  # gradient steps
+    preset: str = "cpu"
+    out: str | None = None  # run directory; default runs/{env}-{dataset}-{returns}-s{seed}
+    # model (DT paper: K=20, 128, 3 layers, 1 head, dropout 0.1)
+    context_len: int = 20
+    embed_dim: int = 128
+    n_layers: int = 3
+    n_heads: int = 1
+    dropout: float = 0.1
+    # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
+    learning_rate: float = 1e-4
+    weight_decay: float = 1e-4
+    warmup_steps: int = 10000
+    grad_clip: float = 0.25
+    batch_size: int = 64
+    # returns
+    rtg_scale: float | None = None  # divides returns-to-go; default 1000 for true returns, 1 for subdom
+    target_return: float | None = None  # eval conditioning; default 0 for subdom, max dataset return for true
+    beta: float = 1.0  # subdominance margin (eq. 1), same for every feature
+    alpha_max: float | None = None  # optional cap on alpha in eq. 2
+    # data and evaluation
+    episode_length: int = 1000  # horizon of generated datasets, of evaluation, and of the cost average
+    dataset_episodes: int = 200  # episodes of a generated named dataset
+    eval_episodes: int = 10  # 0 skips the final evaluation
+    chunk_steps: int = 500  # steps per jitted lax.scan chunk; a checkpoint and a log line after each
+
+    def run_dir(self) -> str:
+        if self.out:
+            return self.out
+        name = self.dataset.rsplit("/", 1)[-1].removesuffix(".hdf5")
+        return f"runs/{self.env}-{name}-{self.returns}-s{self.seed}"
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+
+PRESETS = {
+    # seconds: for tests and a first look
+    "smoke": Config(preset="smoke", steps=20, context_len=5, embed_dim=32, n_layers=1, batch_size=8,
+                    warmup_steps=10, learning_rate=1e-3, chunk_steps=10, episode_length=100,
+                    dataset_episodes=32, eval_episodes=2),
+    # trains and evaluates one dataset in <= 15 min on a 2-core CPU
+    "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
+                  chunk_steps=500, eval_episodes=10),
+    # the DT paper's hyper-parameters (~14 h on a 2-core CPU)
+    "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100),
+}
+
+CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "returns": ("subdom", "true"), "preset": tuple(PRESETS)}
+
+
+def validate(cfg: Config) -> Config:
+    """Raise ValueError with one clear message on an unusable config; return it unchanged otherwise."""
+    for name, allowed in CHOICES.items():
+        if getattr(cfg, name) not in allowed:
+            raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
+    positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
+                "episode_length", "dataset_episodes", "learning_rate", "beta", "warmup_steps")
+    for name in positive:
+        if not getattr(cfg, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if cfg.eval_episodes < 0 or not 0 <= cfg.dropout < 1 or cfg.weight_decay < 0 or cfg.grad_clip <= 0:
+        raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
+    if cfg.embed_dim % cfg.n_heads:
+        raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
+    if cfg.rtg_scale is not None and not cfg.rtg_scale > 0:
+        raise ValueError(f"--rtg-scale must be > 0, got {cfg.rtg_scale}")
+    if cfg.alpha_max is not None and not cfg.alpha_max > 0:
+        raise ValueError(f"--alpha-max must be > 0, got {cfg.alpha_max}")
+    return cfg
+
+
+def _base_type(tp):
+    if isinstance(tp, types.UnionType) or typing.get_origin(tp) is typing.Union:
+        return next(a for a in typing.get_args(tp) if a is not type(None))
+    return tp
+
+
+def parse_args(argv=None) -> tuple[Config, bool]:
+    """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""
+    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
+                                description="Train a MinSubDT (or DT) on one dataset and evaluate it in MJX.")
+    hints = typing.get_type_hints(Config)
+    for f in dataclasses.fields(Config):
+        flag = "--" + f.name.replace("_", "-")
+        kw = {"default": None, "type": _base_type(hints[f.name]), "help": f"(default: {f.default})"}
+        if f.name in CHOICES:
+            kw["choices"] = CHOICES[f.name]
+        p.add_argument(flag, **kw)
+    p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
+    args = vars(p.parse_args(argv))
+    resume = args.pop("resume")
+    preset = args["preset"] or Config.preset
+    given = {k: v for k, v in args.items() if v is not None}
+    cfg = dataclasses.replace(PRESETS[preset], **given)
+    return validate(cfg), resume

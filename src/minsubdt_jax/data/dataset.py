@@ -1,0 +1,150 @@
+"""Trajectory dataset: padded per-episode arrays, built from (and back to) D4RL's flat layout, validated."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class DatasetError(ValueError):
+    """A dataset file or array that cannot be used, with the reason."""
+
+
+@dataclass(frozen=True)
+class Trajectories:
+    """Episodes padded to a common length ``T`` (host numpy arrays; padding is 0).
+
+    Attributes:
+      observations: ``[N, T, obs]`` float32.
+      actions: ``[N, T, act]`` float32.
+      rewards: ``[N, T]`` float32 true rewards.
+      lengths: ``[N]`` int32 valid steps per episode (>= 1).
+      terminals: ``[N]`` bool, episode ended by termination (else by time-out or end of data).
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    lengths: np.ndarray
+    terminals: np.ndarray
+
+    @property
+    def num_trajectories(self) -> int:
+        return int(self.lengths.shape[0])
+
+    @property
+    def num_transitions(self) -> int:
+        return int(self.lengths.sum())
+
+    @property
+    def max_len(self) -> int:
+        return int(self.observations.shape[1])
+
+    @property
+    def obs_dim(self) -> int:
+        return int(self.observations.shape[2])
+
+    @property
+    def act_dim(self) -> int:
+        return int(self.actions.shape[2])
+
+    @property
+    def returns(self) -> np.ndarray:
+        """``[N]`` undiscounted true return of each episode."""
+        return self.rewards.sum(axis=1)
+
+    def valid_mask(self) -> np.ndarray:
+        """``[N, T]`` True on real steps."""
+        return np.arange(self.max_len)[None, :] < self.lengths[:, None]
+
+    def state_stats(self, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and std ``[obs]`` of the states over all real steps (std floored at ``eps``)."""
+        x = self.observations[self.valid_mask()]
+        return x.mean(0).astype(np.float32), np.maximum(x.std(0), eps).astype(np.float32)
+
+    def to_flat(self) -> dict[str, np.ndarray]:
+        """D4RL flat layout: ``observations, actions, rewards, terminals, timeouts`` over all real steps."""
+        m = self.valid_mask()
+        last = np.zeros_like(m)
+        last[np.arange(self.num_trajectories), self.lengths - 1] = True
+        return {
+            "observations": self.observations[m],
+            "actions": self.actions[m],
+            "rewards": self.rewards[m],
+            "terminals": (last & self.terminals[:, None])[m],
+            "timeouts": (last & ~self.terminals[:, None])[m],
+        }
+
+
+REQUIRED_KEYS = ("observations", "actions", "rewards", "terminals", "timeouts")
+
+
+def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
+    """Split D4RL flat arrays into episodes on ``terminals | timeouts``, after validating them.
+
+    A trailing segment with neither flag is kept as a final (time-out-like) episode.
+
+    Raises:
+      DatasetError: missing keys, mismatched lengths, wrong ranks, NaN/inf, or no transitions.
+    """
+    missing = [k for k in REQUIRED_KEYS if k not in arrays]
+    if missing:
+        raise DatasetError(f"{source}: missing keys {missing}; a D4RL-layout dataset needs {list(REQUIRED_KEYS)}")
+    a = {k: np.asarray(arrays[k]) for k in REQUIRED_KEYS}
+    sizes = {k: v.shape[0] if v.ndim else None for k, v in a.items()}
+    if len(set(sizes.values())) != 1:
+        raise DatasetError(f"{source}: keys have mismatched lengths {sizes}")
+    n = sizes["observations"]
+    if n == 0:
+        raise DatasetError(f"{source}: the dataset is empty (0 transitions)")
+    ranks = {"observations": 2, "actions": 2, "rewards": 1, "terminals": 1, "timeouts": 1}
+    bad_rank = {k: a[k].shape for k, r in ranks.items() if a[k].ndim != r}
+    if bad_rank:
+        raise DatasetError(f"{source}: wrong shapes {bad_rank}; expected observations/actions [n, d] and "
+                           f"rewards/terminals/timeouts [n]")
+    for k in ("observations", "actions", "rewards"):
+        bad = ~np.isfinite(a[k])
+        if bad.any():
+            rows = np.nonzero(bad.reshape(n, -1).any(1))[0]
+            raise DatasetError(f"{source}: non-finite values (NaN/inf) in {k!r} at {len(rows)} rows, "
+                               f"first {rows[:5].tolist()}")
+    ends = a["terminals"].astype(bool) | a["timeouts"].astype(bool)
+    stops = np.nonzero(ends)[0] + 1
+    if len(stops) == 0 or stops[-1] != n:
+        stops = np.append(stops, n)
+    starts = np.concatenate([[0], stops[:-1]])
+    lengths = (stops - starts).astype(np.int32)
+    N, T = len(lengths), int(lengths.max())
+    idx = starts[:, None] + np.arange(T)[None, :]
+    valid = np.arange(T)[None, :] < lengths[:, None]
+    idx = np.where(valid, idx, 0)
+
+    def pad(x):
+        out = x[idx].astype(np.float32)
+        out[~valid] = 0.0
+        return out
+
+    return Trajectories(
+        observations=pad(a["observations"]),
+        actions=pad(a["actions"]),
+        rewards=pad(a["rewards"]),
+        lengths=lengths,
+        terminals=a["terminals"].astype(bool)[stops - 1],
+    )
+
+
+def from_padded(observations, actions, rewards, lengths, terminals) -> Trajectories:
+    """A :class:`Trajectories` from padded arrays (e.g. a :class:`~minsubdt_jax.envs.Rollout`), padding zeroed."""
+    lengths = np.asarray(lengths, np.int32)
+    if lengths.size == 0 or lengths.min() < 1:
+        raise DatasetError("every trajectory needs at least one step, and there must be at least one")
+    T = int(lengths.max())
+    valid = np.arange(T)[None, :] < lengths[:, None]
+
+    def cut(x):
+        x = np.array(np.asarray(x)[:, :T], np.float32)
+        x[~valid] = 0.0
+        return x
+
+    return Trajectories(cut(observations), cut(actions), cut(rewards), lengths, np.asarray(terminals, bool))

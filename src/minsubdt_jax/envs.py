@@ -1,0 +1,154 @@
+"""MJX environments (brax, ``backend='mjx'``), batched rollouts and normalised scores.
+
+One rollout program serves dataset generation and evaluation: ``make_rollout`` returns a jitted
+``run(policy_params, policy_carry, rng)`` that steps ``num_episodes`` environments in parallel inside one
+``lax.while_loop`` over time (it stops early once every episode has ended), records every transition, and
+keeps termination apart from time-out (``horizon`` steps without termination).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """Static facts about one environment.
+
+    ``x_velocity_index`` / ``z_velocity_index`` index the observation vector (gym/D4RL layout: ``qpos[1:]``
+    then ``qvel``), so cost metrics can be read from any D4RL-layout dataset as well as from our rollouts.
+    """
+
+    name: str
+    brax_name: str
+    obs_dim: int
+    act_dim: int
+    x_velocity_index: int
+    z_velocity_index: int | None
+
+
+ENVS = {
+    "hopper": EnvSpec("hopper", "hopper", 11, 3, 5, 6),
+    "walker": EnvSpec("walker", "walker2d", 17, 6, 8, 9),
+    "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None),
+}
+_ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
+
+# Normalised-score references: (random policy return, expert return) over 1000 steps.
+# PLACEHOLDER: these are D4RL's gym-physics references, not measured in our MJX envs; the datasets issue
+# replaces them with returns measured here. Results carry `references` = REFERENCE_SOURCE so it shows.
+REFERENCE_RETURNS = {
+    "hopper": (-20.272305, 3234.3),
+    "walker": (1.629008, 4592.3),
+    "halfcheetah": (-280.178953, 12135.0),
+}
+REFERENCE_SOURCE = "placeholder: D4RL gym references (not yet measured in MJX)"
+
+
+def env_spec(name: str) -> EnvSpec:
+    """The :class:`EnvSpec` for ``hopper``, ``walker`` (``walker2d``) or ``halfcheetah``."""
+    key = _ALIASES.get(name, name)
+    if key not in ENVS:
+        raise ValueError(f"unknown env {name!r}; choose one of {sorted(ENVS)} (aliases: {sorted(_ALIASES)})")
+    return ENVS[key]
+
+
+@functools.lru_cache(maxsize=None)
+def make_env(name: str):
+    """The brax environment for ``name`` with MJX physics (cached: one instance, one compile per shape)."""
+    from brax import envs as brax_envs
+
+    return brax_envs.get_environment(env_spec(name).brax_name, backend="mjx")
+
+
+def normalized_score(env: str, returns):
+    """``100 (R - R_random) / (R_expert - R_random)`` with this env's references (see REFERENCE_SOURCE)."""
+    lo, hi = REFERENCE_RETURNS[env_spec(env).name]
+    return 100.0 * (np.asarray(returns, np.float64) - lo) / (hi - lo)
+
+
+@struct.dataclass
+class Rollout:
+    """Recorded episodes, padded to ``horizon`` (entries past ``lengths`` are 0).
+
+    observations ``[N, H, obs]`` (the state each action was taken in), actions ``[N, H, act]``,
+    rewards ``[N, H]``, lengths ``[N]``, terminated ``[N]`` (ended by termination, not by time-out).
+    """
+
+    observations: jax.Array
+    actions: jax.Array
+    rewards: jax.Array
+    lengths: jax.Array
+    terminated: jax.Array
+
+
+# policy(params, carry, obs [N, obs], prev_reward [N], t, rng) -> (carry, action [N, act])
+Policy = Callable[[Any, Any, jax.Array, jax.Array, jax.Array, jax.Array], tuple[Any, jax.Array]]
+
+
+@functools.lru_cache(maxsize=32)
+def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
+    """Cached, jitted ``run(policy_params, policy_carry, rng) -> Rollout`` for ``num_episodes`` parallel episodes.
+
+    Actions are clipped to ``[-1, 1]`` (recorded clipped). An ended episode's physics state is frozen and
+    its later entries are zero. ``policy_params`` and ``policy_carry`` are traced, so one compile serves
+    every parameter value.
+    """
+    brax_env = make_env(env)
+    spec = env_spec(env)
+    n, H = int(num_episodes), int(horizon)
+    if n < 1 or H < 1:
+        raise ValueError(f"num_episodes and horizon must be >= 1, got {n} and {H}")
+
+    def run(policy_params, policy_carry, rng):
+        rng, reset_rng = jax.random.split(rng)
+        state = jax.vmap(brax_env.reset)(jax.random.split(reset_rng, n))
+        buffers = (
+            jnp.zeros((H, n, spec.obs_dim)),
+            jnp.zeros((H, n, spec.act_dim)),
+            jnp.zeros((H, n)),
+        )
+        init = (0, state, policy_carry, jnp.zeros(n, bool), jnp.zeros(n, bool), jnp.zeros(n), rng, buffers,
+                jnp.zeros(n, jnp.int32))
+
+        def cond(c):
+            return (c[0] < H) & ~jnp.all(c[3])
+
+        def body(c):
+            t, state, pcarry, done, terminated, prev_r, rng, (obs_b, act_b, rew_b), length = c
+            rng, key = jax.random.split(rng)
+            pcarry, action = policy(policy_params, pcarry, state.obs, prev_r, t, key)
+            action = jnp.clip(action, -1.0, 1.0)
+            nstate = jax.vmap(brax_env.step)(state, action)
+            alive = ~done
+            reward = jnp.where(alive, nstate.reward, 0.0)
+            obs_b = obs_b.at[t].set(jnp.where(alive[:, None], state.obs, 0.0))
+            act_b = act_b.at[t].set(jnp.where(alive[:, None], action, 0.0))
+            rew_b = rew_b.at[t].set(reward)
+            ended = alive & (nstate.done > 0)
+            state = jax.tree.map(lambda old, new: jnp.where(_bcast(done, old), old, new), state, nstate)
+            return (t + 1, state, pcarry, done | ended, terminated | ended, reward, rng, (obs_b, act_b, rew_b),
+                    length + alive)
+
+        c = jax.lax.while_loop(cond, body, init)
+        obs_b, act_b, rew_b = c[7]
+        return Rollout(observations=obs_b.swapaxes(0, 1), actions=act_b.swapaxes(0, 1),
+                       rewards=rew_b.swapaxes(0, 1), lengths=c[8], terminated=c[4])
+
+    return jax.jit(run)
+
+
+def _bcast(mask, x):
+    return mask.reshape(mask.shape + (1,) * (x.ndim - 1))
+
+
+def random_policy(params, carry, obs, prev_reward, t, rng):
+    """Uniform random actions in ``[-1, 1]``; ``params`` is the action dimension's template ``[act]``."""
+    return carry, jax.random.uniform(rng, (obs.shape[0],) + params.shape, minval=-1.0, maxval=1.0)

@@ -1,0 +1,121 @@
+"""Evaluation: a Decision Transformer policy rolled out in batched MJX, scored by return and by costs.
+
+All episodes run in parallel inside the one jitted while-loop of :func:`minsubdt_jax.envs.make_rollout`;
+the policy keeps a fixed-length, left-padded context of the last K steps. It is conditioned on a target
+return: for surrogate (subdominance) returns a value in ``[-K_costs, 0]`` (0 = dominate every demo by the
+margin), which stays constant along the episode because surrogate rewards are 0 before the last step; for
+true returns the target is decreased by each reward received, as in the DT paper.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from .costs import engineered_costs
+from .envs import make_rollout, normalized_score
+from .model import DecisionTransformer
+from .subdominance import min_subdominance
+
+
+@struct.dataclass
+class PolicyParams:
+    """Traced inputs of the DT policy: model params, state normalisation ``[obs]``, target return (unscaled),
+    return scale, and whether rewards are subtracted from the return-to-go (1.0 for true returns)."""
+
+    model: dict
+    state_mean: jax.Array
+    state_std: jax.Array
+    target_return: jax.Array
+    rtg_scale: jax.Array
+    subtract_rewards: jax.Array
+
+
+@struct.dataclass
+class Context:
+    """The last K steps of each episode: states ``[N, K, obs]``, actions ``[N, K, act]``, returns_to_go
+    ``[N, K]`` (unscaled), timesteps ``[N, K]``, mask ``[N, K]``."""
+
+    states: jax.Array
+    actions: jax.Array
+    returns_to_go: jax.Array
+    timesteps: jax.Array
+    mask: jax.Array
+
+
+def empty_context(num_episodes: int, context_len: int, obs_dim: int, act_dim: int) -> Context:
+    n, k = num_episodes, context_len
+    return Context(jnp.zeros((n, k, obs_dim)), jnp.zeros((n, k, act_dim)), jnp.zeros((n, k)),
+                   jnp.zeros((n, k), jnp.int32), jnp.zeros((n, k), bool))
+
+
+@functools.lru_cache(maxsize=None)
+def dt_policy(model: DecisionTransformer):
+    """The rollout policy of ``model`` (cached per model so the compiled rollout is reused)."""
+
+    def policy(p: PolicyParams, ctx: Context, obs, prev_reward, t, rng):
+        def push(buf, new):
+            return jnp.concatenate([buf[:, 1:], new[:, None]], axis=1)
+
+        last_rtg = ctx.returns_to_go[:, -1]
+        rtg = jnp.where(t == 0, p.target_return, last_rtg - p.subtract_rewards * prev_reward)
+        n = obs.shape[0]
+        ctx = Context(
+            states=push(ctx.states, (obs - p.state_mean) / p.state_std),
+            actions=push(ctx.actions, jnp.zeros((n, ctx.actions.shape[-1]))),
+            returns_to_go=push(ctx.returns_to_go, jnp.broadcast_to(rtg, (n,))),
+            timesteps=push(ctx.timesteps, jnp.full((n,), t, jnp.int32)),
+            mask=push(ctx.mask, jnp.ones((n,), bool)),
+        )
+        pred = model.apply(p.model, ctx.states, ctx.actions, ctx.returns_to_go / p.rtg_scale, ctx.timesteps,
+                           ctx.mask)[:, -1]
+        return ctx.replace(actions=ctx.actions.at[:, -1].set(pred)), pred
+
+    return policy
+
+
+@dataclass
+class EvalResult:
+    """Per-episode results (numpy): returns ``[n]``, lengths ``[n]``, normalized ``[n]``, costs ``[n, K]``
+    (engineered cost features), min_subdominance ``[n]`` against the demo set's cost features."""
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    normalized: np.ndarray
+    costs: np.ndarray
+    min_subdominance: np.ndarray
+
+    def summary(self, cost_names) -> dict:
+        return {
+            "episodes": int(len(self.returns)),
+            "return_mean": float(self.returns.mean()), "return_std": float(self.returns.std()),
+            "normalized_score_mean": float(self.normalized.mean()),
+            "normalized_score_std": float(self.normalized.std()),
+            "length_mean": float(self.lengths.mean()),
+            "costs_mean": {n: float(v) for n, v in zip(cost_names, self.costs.mean(0))},
+            "min_subdominance_mean": float(self.min_subdominance.mean()),
+            "min_subdominance_std": float(self.min_subdominance.std()),
+        }
+
+
+def evaluate(env: str, model: DecisionTransformer, params: PolicyParams, context_len: int, demo_costs,
+             *, num_episodes: int, horizon: int = 1000, beta=1.0, seed: int = 0) -> EvalResult:
+    """Roll ``model`` out for ``num_episodes`` parallel episodes of at most ``horizon`` steps and score them.
+
+    ``demo_costs [M, K]`` are the dataset's engineered cost features; each rollout's min-subdominance
+    (eq. 2, margin ``beta``) is computed against them.
+    """
+    obs_dim = params.state_mean.shape[0]
+    run = make_rollout(env, dt_policy(model), num_episodes, horizon)
+    ro = jax.device_get(run(params, empty_context(num_episodes, context_len, obs_dim, model.act_dim),
+                            jax.random.PRNGKey(seed)))
+    costs = np.asarray(engineered_costs(env, ro.observations, ro.lengths, horizon))
+    returns = np.asarray(ro.rewards).sum(1)
+    ms = min_subdominance(costs, np.asarray(demo_costs), beta)
+    return EvalResult(returns=returns, lengths=np.asarray(ro.lengths), normalized=normalized_score(env, returns),
+                      costs=costs, min_subdominance=np.asarray(ms.value))

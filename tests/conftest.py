@@ -1,0 +1,55 @@
+"""Shared fixtures: one small MJX dataset per session (compiled once), written as a D4RL file."""
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+
+ENV = "hopper"  # the cheapest MJX env to compile and step
+HORIZON = 60
+
+
+@pytest.fixture(scope="session")
+def small_dataset():
+    """32 random-action hopper episodes of at most 60 steps, made in MJX inside the test run."""
+    from minsubdt_jax.data import generate_random
+
+    return generate_random(ENV, episodes=32, horizon=HORIZON, seed=0)
+
+
+@pytest.fixture(scope="session")
+def small_dataset_path(small_dataset, tmp_path_factory):
+    from minsubdt_jax.data import save_d4rl
+
+    path = tmp_path_factory.mktemp("data") / "hopper-small.hdf5"
+    save_d4rl(small_dataset, path)
+    return str(path)
+
+
+@pytest.fixture(scope="session")
+def cli_env(tmp_path_factory):
+    """Environment for CLI subprocesses: a private cache and a shared persistent XLA compilation cache."""
+    env = dict(os.environ)
+    env["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg"))
+    env["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path_factory.mktemp("xla"))
+    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
+    return env
+
+
+def brute_force_min_subdominance(F, G, beta, alpha_max=np.inf, leave_one_out=False):
+    """[N, K] per-feature minimum of eq. 2 by evaluating g at alpha = 0, every breakpoint beta/|d| (d < 0)
+    and the cap, in float64: an independent reference for both solvers."""
+    F, G = np.asarray(F, np.float64), np.asarray(G, np.float64)
+    beta = np.broadcast_to(np.asarray(beta, np.float64), (F.shape[1],))
+    out = np.zeros(F.shape)
+    for i in range(F.shape[0]):
+        for k in range(F.shape[1]):
+            d = F[i, k] - G[:, k]
+            if leave_one_out:
+                d = np.delete(d, i)
+            cands = np.array([0.0] + [beta[k] / -x for x in d if x < 0] + ([alpha_max] if np.isfinite(alpha_max) else []))
+            cands = np.minimum(cands, alpha_max)
+            out[i, k] = min(np.mean(np.maximum(a * d + beta[k], 0.0)) for a in cands)
+    return out

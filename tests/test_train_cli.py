@@ -1,0 +1,95 @@
+"""The training CLI end to end, as a user runs it (subprocesses sharing a persistent XLA cache)."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import orbax.checkpoint as ocp
+import pytest
+
+SMOKE = ["--preset", "smoke", "--env", "hopper", "--episode-length", "60"]
+
+
+def _run(args, env, check=True):
+    p = subprocess.run([sys.executable, "-m", "minsubdt_jax.train", *args], env=env, capture_output=True, text=True,
+                       timeout=600)
+    if check and p.returncode != 0:
+        raise AssertionError(f"exit {p.returncode}\nstdout:\n{p.stdout[-3000:]}\nstderr:\n{p.stderr[-3000:]}")
+    return p
+
+
+def _params(run_dir):
+    mngr = ocp.CheckpointManager(os.path.abspath(os.path.join(run_dir, "checkpoints")))
+    restored = mngr.restore(mngr.latest_step())
+    return mngr.latest_step(), restored
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory, small_dataset_path, cli_env):
+    out = tmp_path_factory.mktemp("runs") / "full"
+    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], cli_env)
+    return out, p
+
+
+def test_smoke_train_and_evaluate(full_run):
+    out, p = full_run
+    assert "Spearman(-min-subdominance, true return)" in p.stdout
+    for name in ("config.json", "metrics.jsonl", "results.json", "learning_curve.png"):
+        assert (out / name).exists(), name
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["preset"] == "smoke" and cfg["steps"] == 20 and cfg["episode_length"] == 60
+    metrics = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [m["step"] for m in metrics] == [10, 20] and all(np.isfinite(m["loss"]) for m in metrics)
+    res = json.loads((out / "results.json").read_text())
+    ev = res["eval"]
+    assert ev["episodes"] == 2 and 1 <= ev["length_mean"] <= 60
+    assert set(ev["costs_mean"]) == {"x_velocity", "z_velocity"}
+    assert 0 <= ev["min_subdominance_mean"] <= 2 and np.isfinite(ev["normalized_score_mean"])
+    assert res["dataset"]["episodes"] == 32 and "placeholder" in res["references"]
+
+
+def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_path, cli_env):
+    """Stop after the first chunk (10 steps), resume to 20: identical to the uninterrupted run."""
+    out = tmp_path / "resumed"
+    common = [*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0"]
+    _run([*common, "--steps", "10"], cli_env)
+    assert _params(out)[0] == 10
+    p = _run([*common, "--steps", "20", "--resume"], cli_env)
+    assert "resumed from step 10" in p.stdout
+    step_a, a = _params(full_run[0])
+    step_b, b = _params(out)
+    assert step_a == step_b == 20
+    leaves_a, leaves_b = [np.asarray(x) for x in _leaves(a)], [np.asarray(x) for x in _leaves(b)]
+    assert len(leaves_a) == len(leaves_b) > 5
+    for x, y in zip(leaves_a, leaves_b):
+        np.testing.assert_array_equal(x, y)
+    metrics = [json.loads(line)["step"] for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert metrics == [10, 20]
+
+
+def _leaves(tree):
+    import jax
+
+    return jax.tree.leaves(tree)
+
+
+def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, cli_env):
+    out = tmp_path / "never"
+    p = _run([*SMOKE, "--dataset", str(tmp_path / "missing.hdf5"), "--out", str(out)], cli_env, check=False)
+    assert p.returncode == 2 and "error: no dataset file at" in p.stderr and "Traceback" not in p.stderr
+    assert not out.exists()
+    p = _run([*SMOKE, "--steps", "0", "--out", str(out)], cli_env, check=False)
+    assert p.returncode == 2 and "--steps must be > 0" in p.stderr and not out.exists()
+    p = _run(["--env", "ant"], cli_env, check=False)
+    assert p.returncode == 2 and "invalid choice: 'ant'" in p.stderr
+
+
+def test_existing_run_needs_resume(full_run, small_dataset_path, cli_env):
+    out, _ = full_run
+    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], cli_env, check=False)
+    assert p.returncode == 2 and "pass --resume" in p.stderr
+    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--resume", "--batch-size", "4"], cli_env,
+             check=False)
+    assert p.returncode == 2 and "config differs" in p.stderr and "batch_size" in p.stderr
