@@ -88,20 +88,29 @@ def test_optax_l2_shrinks_alpha():
 
 
 def test_exact_large_does_not_build_pairwise_tensor():
-    """N = M = 100,000, K = 4 in float32 would need 160 GB as an N x M x K tensor; exact stays O(N + M)."""
+    """N = M = 100,000, K = 4 would need 160 GB as an N x M x K float32 tensor; exact stays O(N + M).
+
+    Checked on sampled rows: the returned alpha attains the value (direct evaluation over all demos, own pair
+    excluded), and, g being convex in alpha, no nearby alpha does better, so alpha is a global minimiser.
+    """
     rng = np.random.default_rng(1)
-    G = rng.normal(size=(100_000, 4)).astype(np.float32)
+    M = 100_000
+    G = rng.normal(size=(M, 4)).astype(np.float32)
     r = min_subdominance(G, G, leave_one_out=True)
     v = np.asarray(r.value)
-    assert v.shape == (100_000,) and np.all(np.isfinite(v)) and np.all((v >= 0) & (v <= 4 + 1e-4))
-    idx = rng.choice(100_000, 3, replace=False)
-    ref = brute_force_min_subdominance(G[idx], G, 1.0)  # not leave-one-out: fix up the own pair below
-    # own pair excluded: value_loo = (M * g_with_own - own_term) / (M - 1), where own term = beta at any alpha
-    # only when alpha*0 + beta; check against direct evaluation at the returned alpha instead
-    a = np.asarray(r.alpha)[idx]
-    direct = (np.maximum(a[:, None, :] * (G[idx][:, None, :] - G[None]) + 1.0, 0).sum(1) - 1.0) / (100_000 - 1)
-    np.testing.assert_allclose(direct.sum(1), v[idx], rtol=1e-3, atol=1e-3)
-    assert np.all(v[idx] <= ref.sum(1) * 100_000 / 99_999 + 1e-3)
+    assert v.shape == (M,) and np.all(np.isfinite(v)) and np.all((v >= 0) & (v <= 4 + 1e-4))
+    idx = rng.choice(M, 4, replace=False)
+    D = G[idx].astype(np.float64)[:, None, :] - G[None].astype(np.float64)  # [4, M, K]
+
+    def g(alpha):  # [4, K] mean subdominance per feature, own pair (contributing exactly beta = 1) removed
+        return (np.maximum(alpha[:, None, :] * D + 1.0, 0).sum(1) - 1.0) / (M - 1)
+
+    a = np.asarray(r.alpha, np.float64)[idx]
+    at = g(a)
+    np.testing.assert_allclose(at, np.asarray(r.per_feature)[idx], atol=2e-4)
+    for factor in (0.99, 1.01):
+        assert np.all(g(a * factor) >= at - 1e-6)
+    assert np.all(g(a + 1e-3) >= at - 1e-6)  # also covers alpha = 0
 
 
 def test_subdominance_and_pairwise_agree_with_definition():
