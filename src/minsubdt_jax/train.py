@@ -76,8 +76,8 @@ def action_loss(model: DecisionTransformer, params, batch: Batch, rng) -> jax.Ar
     return jnp.sum(err * batch.mask) / jnp.maximum(jnp.sum(batch.mask), 1)
 
 
-def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int):
-    """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``."""
+def make_train_step(model: DecisionTransformer, tx, cfg: Config):
+    """Pure ``step(state, data) -> (state, loss)``: sample a batch, forward, backward, clipped AdamW update."""
 
     def step(state: TrainState, data: SamplerData):
         rng, k_batch, k_drop = jax.random.split(state.rng, 3)
@@ -86,6 +86,13 @@ def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int):
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         return TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng), loss
+
+    return step
+
+
+def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int):
+    """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``."""
+    step = make_train_step(model, tx, cfg)
 
     def chunk(state, data):
         return jax.lax.scan(lambda s, _: step(s, data), state, None, length=n_steps)
