@@ -1,7 +1,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
 from conftest import brute_force_min_subdominance
@@ -27,6 +27,10 @@ def instances(draw):
 
 @settings(max_examples=150, deadline=None)
 @given(instances())
+# demos tied with x once compared unequal after centring (two XLA fusions rounding differently): the first
+# gave alpha = inf and value nan, the second alpha = 2**23 and value 0 instead of 1/3
+@example((np.zeros((10, 1)), np.r_[np.zeros(9), -0.25][:, None], 1.0, None, True))
+@example((np.array([[-1.5]]), np.array([[0.0], [0.25], [-1.5]]), 1.0, None, False))
 def test_exact_matches_brute_force(inst):
     F, G, beta, alpha_max, loo = inst
     r = min_subdominance(F, G, beta, alpha_max=alpha_max, leave_one_out=loo)

@@ -150,11 +150,15 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     """
     N, K = F.shape
     M = G.shape[0]
+    # Orderings and ties use the raw values (x, s), so a demo equal to x always compares equal to it. Sums use
+    # values shifted by the demo mean (xc, P): better rounding, and a shift leaves every difference unchanged.
     center = jnp.mean(G, axis=0)
-    x = F - center  # [N, K]; shifting both sides leaves every difference unchanged, and helps rounding
+    x = F  # [N, K]
+    xc = F - center
     order = jnp.argsort(G, axis=0)  # [M, K]
-    s = jnp.take_along_axis(G - center, order, axis=0)  # [M, K] sorted per feature
-    P = jnp.concatenate([jnp.zeros((1, K), s.dtype), jnp.cumsum(s, axis=0)])  # [M+1, K] prefix sums
+    s = jnp.take_along_axis(G, order, axis=0)  # [M, K] sorted per feature
+    sc = s - center
+    P = jnp.concatenate([jnp.zeros((1, K), s.dtype), jnp.cumsum(sc, axis=0)])  # [M+1, K] shifted prefix sums
     cols = jnp.arange(K)[None, :]
     if leave_one_out:
         p = jnp.zeros((M, K), jnp.int32).at[order, cols].set(jnp.arange(M, dtype=jnp.int32)[:, None])  # rank
@@ -162,10 +166,10 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     else:
         p = jnp.full((N, K), M, jnp.int32)  # nothing removed
         m_eff = M
-    s_p = s[jnp.minimum(p, M - 1), cols]  # value of the removed demo (unused when nothing is removed)
+    sc_p = sc[jnp.minimum(p, M - 1), cols]  # shifted value of the removed demo (unused when none is removed)
 
-    def prefix(m):  # sum of the m smallest remaining demos, m in [0, m_eff]
-        return jnp.where(m <= p, P[m, cols], P[jnp.minimum(m + 1, M), cols] - s_p)
+    def prefix(m):  # sum of the m smallest remaining demos, shifted by center, m in [0, m_eff]
+        return jnp.where(m <= p, P[m, cols], P[jnp.minimum(m + 1, M), cols] - sc_p)
 
     def sorted_value(r):  # r-th smallest remaining demo
         return s[jnp.minimum(r + (r >= p), M - 1), cols]
@@ -174,14 +178,17 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
         c = jax.vmap(lambda col, q: jnp.searchsorted(col, q, side="left"), in_axes=(1, 1), out_axes=1)(s, t)
         return c - (p < c)
 
-    # bisection for m* = min{m in [1, m_eff] : prefix(m) > m x}; m_eff + 1 when no such m
+    # bisection for m* = min{m in [1, m_eff] : mean of the m smallest > x}; m_eff + 1 when no such m. The m-th
+    # smallest demo exceeding x is implied in exact arithmetic; requiring it too (an exact comparison) keeps
+    # the predicate monotone and the breakpoint's gap > 0 when rounding puts a running mean of ties above x.
     lo = jnp.zeros((N, K), jnp.int32)
     hi = jnp.full((N, K), m_eff + 1, jnp.int32)
 
     def body(_, lohi):
         lo, hi = lohi
         mid = (lo + hi) // 2
-        ok = (mid >= 1) & (mid <= m_eff) & (prefix(jnp.clip(mid, 0, m_eff)) > mid * x)
+        m = jnp.clip(mid, 1, m_eff)
+        ok = (mid >= 1) & (mid <= m_eff) & (prefix(m) > m * xc) & (sorted_value(m - 1) > x)
         return jnp.where(ok, lo, mid), jnp.where(ok, mid, hi)
 
     lo, hi = jax.lax.fori_loop(0, math.ceil(math.log2(m_eff + 2)) + 1, body, (lo, hi))
@@ -189,16 +196,17 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     gap = sorted_value(jnp.clip(hi - 1, 0, m_eff - 1)) - x  # > 0 whenever has_breakpoint
     alpha = jnp.where(has_breakpoint, beta / jnp.where(has_breakpoint, gap, 1.0), 0.0)
     alpha = jnp.minimum(alpha, alpha_max)
-    per_feature = _g_sorted(alpha, x, beta, m_eff, count_below, prefix)
+    per_feature = _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix)
     return MinSubdominance(value=per_feature.sum(-1), alpha=alpha, per_feature=per_feature)
 
 
-def _g_sorted(alpha, x, beta, m_eff, count_below, prefix):
+def _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix):
     """``g(alpha) = 1/M' sum_j [alpha (x - s_j) + beta]_+`` from sorted demos: the active demos are those
-    with ``s_j < x + beta / alpha``, so ``g = (alpha (c x - prefix(c)) + c beta) / M'`` with c their count."""
+    with ``s_j < x + beta / alpha``, so ``g = (alpha (c x - prefix(c)) + c beta) / M'`` with c their count
+    (computed with ``xc`` and ``prefix`` shifted alike)."""
     safe = jnp.where(alpha > 0, alpha, 1.0)
     c = jnp.where(alpha > 0, count_below(x + beta / safe), m_eff)
-    return jnp.maximum(alpha * (c * x - prefix(c)) + c * beta, 0.0) / m_eff
+    return jnp.maximum(alpha * (c * xc - prefix(c)) + c * beta, 0.0) / m_eff
 
 
 # ---------------------------------------------------------------------------------------------------------
