@@ -47,7 +47,7 @@ def test_smoke_train_and_evaluate(full_run):
     assert ev["episodes"] == 2 and 1 <= ev["length_mean"] <= 60
     assert set(ev["costs_mean"]) == {"x_velocity", "z_velocity"}
     assert 0 <= ev["min_subdominance_mean"] <= 2 and np.isfinite(ev["normalized_score_mean"])
-    assert res["dataset"]["episodes"] == 32 and "placeholder" in res["references"]
+    assert res["dataset"]["episodes"] == 32 and "MJX" in res["references"]
 
 
 def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_path, cli_env):

@@ -15,7 +15,7 @@ class Config:
     """Every field is a ``--flag`` of ``python -m minsubdt_jax.train`` (underscores become dashes)."""
 
     env: str = "walker"  # hopper | walker | halfcheetah
-    dataset: str = "random"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
+    dataset: str = "medium"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
     returns: str = "subdom"  # subdom: MinSubDT surrogate returns | true: the dataset's rewards (plain DT)
     seed: int = 0
     steps: int = 3000  # gradient steps
@@ -40,7 +40,7 @@ class Config:
     alpha_max: float | None = None  # optional cap on alpha in eq. 2
     # data and evaluation
     episode_length: int = 1000  # horizon of generated datasets, of evaluation, and of the cost average
-    dataset_episodes: int = 200  # episodes of a generated named dataset
+    dataset_transitions: int = 100_000  # size of a recorded named dataset (medium-expert: twice)
     eval_episodes: int = 10  # 0 skips the final evaluation
     chunk_steps: int = 500  # steps per jitted lax.scan chunk; a checkpoint and a log line after each
 
@@ -58,7 +58,7 @@ PRESETS = {
     # seconds: for tests and a first look
     "smoke": Config(preset="smoke", steps=20, context_len=5, embed_dim=32, n_layers=1, batch_size=8,
                     warmup_steps=10, learning_rate=1e-3, chunk_steps=10, episode_length=100,
-                    dataset_episodes=32, eval_episodes=2),
+                    dataset_transitions=2000, eval_episodes=2),
     # trains and evaluates one dataset in <= 15 min on a 2-core CPU
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
                   chunk_steps=500, eval_episodes=10),
@@ -75,7 +75,7 @@ def validate(cfg: Config) -> Config:
         if getattr(cfg, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
-                "episode_length", "dataset_episodes", "learning_rate", "beta", "warmup_steps")
+                "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps")
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
@@ -96,17 +96,22 @@ def _base_type(tp):
     return tp
 
 
+def add_flags(parser: argparse.ArgumentParser, cls, choices: dict) -> None:
+    """One ``--field-name`` flag per field of dataclass ``cls``, typed from its annotation, default ``None``
+    (so that only the flags given override a preset)."""
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        kw = {"default": None, "type": _base_type(hints[f.name]), "help": f"(default: {f.default})"}
+        if f.name in choices:
+            kw["choices"] = choices[f.name]
+        parser.add_argument("--" + f.name.replace("_", "-"), **kw)
+
+
 def parse_args(argv=None) -> tuple[Config, bool]:
     """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
                                 description="Train a MinSubDT (or DT) on one dataset and evaluate it in MJX.")
-    hints = typing.get_type_hints(Config)
-    for f in dataclasses.fields(Config):
-        flag = "--" + f.name.replace("_", "-")
-        kw = {"default": None, "type": _base_type(hints[f.name]), "help": f"(default: {f.default})"}
-        if f.name in CHOICES:
-            kw["choices"] = CHOICES[f.name]
-        p.add_argument(flag, **kw)
+    add_flags(p, Config, CHOICES)
     p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
     args = vars(p.parse_args(argv))
     resume = args.pop("resume")

@@ -41,15 +41,9 @@ ENVS = {
 }
 _ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
 
-# Normalised-score references: (random policy return, expert return) over 1000 steps.
-# PLACEHOLDER: these are D4RL's gym-physics references, not measured in our MJX envs; the datasets issue
-# replaces them with returns measured here. Results carry `references` = REFERENCE_SOURCE so it shows.
-REFERENCE_RETURNS = {
-    "hopper": (-20.272305, 3234.3),
-    "walker": (1.629008, 4592.3),
-    "halfcheetah": (-280.178953, 12135.0),
-}
-REFERENCE_SOURCE = "placeholder: D4RL gym references (not yet measured in MJX)"
+# Normalised-score references (random-policy and expert returns over 1000 steps, measured in these MJX envs)
+# live beside the committed behaviour policies; see minsubdt_jax.behavior.policies.
+REFERENCE_SOURCE = "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes"
 
 
 def env_spec(name: str) -> EnvSpec:
@@ -68,9 +62,17 @@ def make_env(name: str):
     return brax_envs.get_environment(env_spec(name).brax_name, backend="mjx")
 
 
+def reference_returns(env: str) -> tuple[float, float]:
+    """``(R_random, R_expert)`` for ``env``, measured in MJX and committed with the behaviour policies."""
+    from .behavior.policies import load_manifest
+
+    refs = load_manifest(env_spec(env).name)["references"]
+    return refs["random"]["return_mean"], refs["expert"]["return_mean"]
+
+
 def normalized_score(env: str, returns):
-    """``100 (R - R_random) / (R_expert - R_random)`` with this env's references (see REFERENCE_SOURCE)."""
-    lo, hi = REFERENCE_RETURNS[env_spec(env).name]
+    """``100 (R - R_random) / (R_expert - R_random)`` with this env's MJX references (:func:`reference_returns`)."""
+    lo, hi = reference_returns(env)
     return 100.0 * (np.asarray(returns, np.float64) - lo) / (hi - lo)
 
 
@@ -79,7 +81,8 @@ class Rollout:
     """Recorded episodes, padded to ``horizon`` (entries past ``lengths`` are 0).
 
     observations ``[N, H, obs]`` (the state each action was taken in), actions ``[N, H, act]``,
-    rewards ``[N, H]``, lengths ``[N]``, terminated ``[N]`` (ended by termination, not by time-out).
+    rewards ``[N, H]``, lengths ``[N]``, terminated ``[N]`` (ended by termination, not by time-out),
+    and the physics state each action was taken in: qpos ``[N, H, nq]``, qvel ``[N, H, nv]``.
     """
 
     observations: jax.Array
@@ -87,6 +90,8 @@ class Rollout:
     rewards: jax.Array
     lengths: jax.Array
     terminated: jax.Array
+    qpos: jax.Array
+    qvel: jax.Array
 
 
 # policy(params, carry, obs [N, obs], prev_reward [N], t, rng) -> (carry, action [N, act])
@@ -110,10 +115,13 @@ def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
     def run(policy_params, policy_carry, rng):
         rng, reset_rng = jax.random.split(rng)
         state = jax.vmap(brax_env.reset)(jax.random.split(reset_rng, n))
+        pipe = state.pipeline_state
         buffers = (
             jnp.zeros((H, n, spec.obs_dim)),
             jnp.zeros((H, n, spec.act_dim)),
             jnp.zeros((H, n)),
+            jnp.zeros((H,) + pipe.qpos.shape),
+            jnp.zeros((H,) + pipe.qvel.shape),
         )
         init = (0, state, policy_carry, jnp.zeros(n, bool), jnp.zeros(n, bool), jnp.zeros(n), rng, buffers,
                 jnp.zeros(n, jnp.int32))
@@ -122,7 +130,7 @@ def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
             return (c[0] < H) & ~jnp.all(c[3])
 
         def body(c):
-            t, state, pcarry, done, terminated, prev_r, rng, (obs_b, act_b, rew_b), length = c
+            t, state, pcarry, done, terminated, prev_r, rng, (obs_b, act_b, rew_b, qpos_b, qvel_b), length = c
             rng, key = jax.random.split(rng)
             pcarry, action = policy(policy_params, pcarry, state.obs, prev_r, t, key)
             action = jnp.clip(action, -1.0, 1.0)
@@ -132,15 +140,17 @@ def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
             obs_b = obs_b.at[t].set(jnp.where(alive[:, None], state.obs, 0.0))
             act_b = act_b.at[t].set(jnp.where(alive[:, None], action, 0.0))
             rew_b = rew_b.at[t].set(reward)
+            qpos_b = qpos_b.at[t].set(jnp.where(alive[:, None], state.pipeline_state.qpos, 0.0))
+            qvel_b = qvel_b.at[t].set(jnp.where(alive[:, None], state.pipeline_state.qvel, 0.0))
             ended = alive & (nstate.done > 0)
             state = jax.tree.map(lambda old, new: jnp.where(_bcast(done, old), old, new), state, nstate)
-            return (t + 1, state, pcarry, done | ended, terminated | ended, reward, rng, (obs_b, act_b, rew_b),
-                    length + alive)
+            return (t + 1, state, pcarry, done | ended, terminated | ended, reward, rng,
+                    (obs_b, act_b, rew_b, qpos_b, qvel_b), length + alive)
 
         c = jax.lax.while_loop(cond, body, init)
-        obs_b, act_b, rew_b = c[7]
-        return Rollout(observations=obs_b.swapaxes(0, 1), actions=act_b.swapaxes(0, 1),
-                       rewards=rew_b.swapaxes(0, 1), lengths=c[8], terminated=c[4])
+        obs_b, act_b, rew_b, qpos_b, qvel_b = (b.swapaxes(0, 1) for b in c[7])
+        return Rollout(observations=obs_b, actions=act_b, rewards=rew_b, lengths=c[8], terminated=c[4],
+                       qpos=qpos_b, qvel=qvel_b)
 
     return jax.jit(run)
 

@@ -34,6 +34,7 @@ from .data.sampler import Batch, SamplerData
 from .envs import REFERENCE_SOURCE, normalized_score
 from .evaluate import PolicyParams, evaluate
 from .model import DecisionTransformer
+from .rundir import check_run_dir, progress, truncate_metrics
 from .subdominance import min_subdominance, returns_to_go, surrogate_rewards
 
 # Fields that may differ between a run and its resumption.
@@ -102,8 +103,8 @@ def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int):
 
 def prepare(cfg: Config, verbose: bool = True) -> dict:
     """Dataset -> cost features -> min-subdominance -> (surrogate) returns-to-go -> sampler arrays."""
-    dataset, path = resolve_dataset(cfg.env, cfg.dataset, episodes=cfg.dataset_episodes, horizon=cfg.episode_length,
-                                    seed=cfg.seed, verbose=verbose)
+    dataset, path = resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions,
+                                    horizon=cfg.episode_length, seed=cfg.seed, verbose=verbose)
     if dataset.max_len > cfg.episode_length:
         raise ValueError(f"the dataset has episodes of {dataset.max_len} steps, longer than --episode-length "
                          f"{cfg.episode_length}")
@@ -143,7 +144,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
     cfg = validate(cfg)
     out = cfg.run_dir()
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
-    _check_run_dir(cfg, out, ckpt_dir, resume)
+    check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
     prep = prepare(cfg, verbose)  # before anything is written: bad data changes nothing
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "config.json"), "w") as f:
@@ -159,11 +160,11 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
             print(f"resumed from step {int(state.step)}", flush=True)
     start = int(state.step)
     metrics_path = os.path.join(out, "metrics.jsonl")
-    _truncate_metrics(metrics_path, start)
+    truncate_metrics(metrics_path, start)
 
     chunks = {}
     t0 = time.time()
-    bar = _progress(total=cfg.steps, initial=start, disable=not verbose)
+    bar = progress(total=cfg.steps, initial=start, disable=not verbose)
     while int(state.step) < cfg.steps:
         n = min(cfg.chunk_steps, cfg.steps - int(state.step))
         if n not in chunks:
@@ -205,39 +206,6 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
     if verbose:
         print(f"wrote {out}/results.json", flush=True)
     return results
-
-
-def _check_run_dir(cfg: Config, out: str, ckpt_dir: str, resume: bool) -> None:
-    cfg_path = os.path.join(out, "config.json")
-    has_ckpt = os.path.isdir(ckpt_dir) and any(d.isdigit() for d in os.listdir(ckpt_dir))
-    if resume:
-        if not os.path.exists(cfg_path) or not has_ckpt:
-            raise ValueError(f"--resume: no checkpoint in {out}")
-        with open(cfg_path) as f:
-            old = json.load(f)
-        new = dataclasses.asdict(cfg)
-        diff = {k: (old.get(k), v) for k, v in new.items() if k not in RESUMABLE_CHANGES and old.get(k) != v}
-        if diff:
-            raise ValueError(f"--resume: config differs from the checkpointed run in {diff} (old, new)")
-    elif has_ckpt:
-        raise ValueError(f"{out} already holds checkpoints: pass --resume to continue, or another --out")
-
-
-def _truncate_metrics(path: str, step: int) -> None:
-    """Drop metric lines past ``step`` (written after the checkpoint a resumed run restarts from)."""
-    if not os.path.exists(path):
-        return
-    with open(path) as f:
-        lines = [ln for ln in f if ln.strip() and json.loads(ln)["step"] <= step]
-    with open(path, "w") as f:
-        f.writelines(lines)
-
-
-def _progress(total: int, initial: int, disable: bool):
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=initial, disable=disable, unit="step", dynamic_ncols=True, file=sys.stdout,
-                mininterval=1.0)
 
 
 def plot_learning_curve(metrics_path: str, png_path: str) -> None:

@@ -148,3 +148,17 @@ def from_padded(observations, actions, rewards, lengths, terminals) -> Trajector
         return x
 
     return Trajectories(cut(observations), cut(actions), cut(rewards), lengths, np.asarray(terminals, bool))
+
+
+def concatenate(parts: list[Trajectories]) -> Trajectories:
+    """All episodes of ``parts`` in order, padded to the longest."""
+    if not parts:
+        raise DatasetError("nothing to concatenate")
+    T = max(p.max_len for p in parts)
+
+    def cat(name):
+        xs = [getattr(p, name) for p in parts]
+        return np.concatenate([np.pad(x, [(0, 0), (0, T - x.shape[1])] + [(0, 0)] * (x.ndim - 2)) for x in xs])
+
+    return Trajectories(cat("observations"), cat("actions"), cat("rewards"),
+                        np.concatenate([p.lengths for p in parts]), np.concatenate([p.terminals for p in parts]))

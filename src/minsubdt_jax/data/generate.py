@@ -1,23 +1,37 @@
-"""Named datasets made in MJX and cached on disk.
+"""D4RL-style datasets recorded in MJX from the committed behaviour policies, cached on disk.
 
-Until the behaviour-policy datasets exist, the one named dataset is ``random``: uniformly random actions,
-as D4RL's random datasets. Files are cached under ``$XDG_CACHE_HOME/minsubdt_jax/datasets`` (else
-``~/.cache/...``), one per (env, name, episodes, horizon, seed), and generated on first use.
+    python -m minsubdt_jax.data --env walker --dataset medium                     # 100k transitions
+    python -m minsubdt_jax.data --env hopper --dataset medium-replay --transitions 1000000   # D4RL's size
+
+* ``random``: uniformly random actions;
+* ``medium`` / ``expert``: the committed medium / expert SAC snapshot, actions sampled from the stochastic
+  policy (as D4RL did);
+* ``medium-replay``: equal shares of transitions from the random policy (SAC's warm-up) and from each
+  committed snapshot of training up to medium, standing in for D4RL's replay buffer;
+* ``medium-expert``: ``medium`` ∪ ``expert`` (each of ``transitions``, so twice the size, as in D4RL).
+
+Episodes are whole (``horizon`` steps unless terminated) and collected in batches until at least
+``transitions`` transitions; everything is a function of the seed. Files go to
+``$XDG_CACHE_HOME/minsubdt_jax/datasets`` (else ``~/.cache/...``) in the D4RL layout plus ``infos/qpos``,
+``infos/qvel``, ``infos/x_velocity``, ``infos/z_velocity`` (of the state each action was taken in).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
 import jax
 import numpy as np
 
-from ..envs import env_spec, make_rollout, random_policy
+from ..envs import env_spec, make_rollout, normalized_score, random_policy
 from .d4rl import load_d4rl, save_d4rl
-from .dataset import DatasetError, Trajectories, from_padded
+from .dataset import DatasetError, Trajectories, concatenate, from_padded
 
-NAMED_DATASETS = ("random",)
+NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
+DEFAULT_TRANSITIONS = 100_000
+MAX_BATCH = 128  # episodes per jitted rollout call (at most)
 
 
 def cache_dir() -> str:
@@ -26,32 +40,126 @@ def cache_dir() -> str:
     return os.path.join(base, "minsubdt_jax")
 
 
+def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: int) -> str:
+    return os.path.join(cache_dir(), "datasets",
+                        f"{env_spec(env).name}-{dataset}-t{transitions}-h{horizon}-s{seed}.hdf5")
+
+
+def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None) -> tuple[Trajectories, dict]:
+    """Whole episodes of one policy (``actor_params=None``: uniform random actions) in batched MJX until they
+    hold at least ``transitions`` transitions. Returns the episodes and their flat per-step ``infos``."""
+    from ..behavior.networks import policy_step
+
+    # enough episodes in one call when they average a quarter of the horizon; one compiled shape per call site
+    batch = max(1, min(MAX_BATCH, 4 * math.ceil(transitions / horizon)))
+    if actor_params is None:
+        policy, actor_params = random_policy, np.zeros(env_spec(env).act_dim, np.float32)
+    else:
+        policy = policy_step
+    run = make_rollout(env, policy, batch, horizon)
+    parts, total, i = [], 0, 0
+    while total < transitions:
+        ro = jax.device_get(run(actor_params, (), jax.random.fold_in(rng, i)))
+        lengths = np.asarray(ro.lengths)
+        keep = int(np.searchsorted(np.cumsum(lengths), transitions - total)) + 1  # episodes needed, at most batch
+        ro = jax.tree.map(lambda x: np.asarray(x)[:keep], ro)
+        parts.append(ro)
+        added = int(ro.lengths.sum())
+        total += added
+        i += 1
+        if bar is not None:
+            bar.update(added)
+    ro = jax.tree.map(lambda *xs: _pad_cat(xs), *parts)
+    data = from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
+    mask = data.valid_mask()
+    qpos, qvel = ro.qpos[:, :data.max_len][mask], ro.qvel[:, :data.max_len][mask]
+    infos = {"qpos": qpos, "qvel": qvel, "x_velocity": qvel[:, 0], "z_velocity": qvel[:, 1]}
+    return data, infos
+
+
+def _pad_cat(xs):
+    """Concatenate ``[n_i, T_i, ...]`` arrays along episodes, zero-padding time to the longest."""
+    if xs[0].ndim < 2:
+        return np.concatenate(xs)
+    T = max(x.shape[1] for x in xs)
+    return np.concatenate([np.pad(x, [(0, 0), (0, T - x.shape[1])] + [(0, 0)] * (x.ndim - 2)) for x in xs])
+
+
+def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, horizon: int = 1000, seed: int = 0,
+             verbose: bool = True) -> tuple[Trajectories, dict]:
+    """Record the named ``dataset`` (not ``medium-expert``, which :func:`resolve_dataset` assembles)."""
+    from tqdm import tqdm
+
+    from ..behavior.policies import load_policy, load_replay_policies
+
+    if dataset == "random":
+        policies = [None]
+    elif dataset in ("medium", "expert"):
+        policies = [load_policy(env, dataset)]
+    elif dataset == "medium-replay":
+        policies = [None, *load_replay_policies(env)]
+    else:
+        raise DatasetError(f"cannot record {dataset!r} directly; choose one of {list(NAMED_DATASETS)}")
+    share = math.ceil(transitions / len(policies))
+    rng = jax.random.PRNGKey(seed)
+    with tqdm(total=share * len(policies), disable=not verbose, unit="transition", unit_scale=True,
+              desc=f"{env_spec(env).name}/{dataset}", dynamic_ncols=True, mininterval=1.0) as bar:
+        parts = [collect(env, p, share, horizon, jax.random.fold_in(rng, j), bar) for j, p in enumerate(policies)]
+    return concatenate([d for d, _ in parts]), {k: np.concatenate([i[k] for _, i in parts]) for k in parts[0][1]}
+
+
 def generate_random(env: str, episodes: int, horizon: int, seed: int) -> Trajectories:
-    """``episodes`` episodes of uniformly random actions in batched MJX, each at most ``horizon`` steps."""
-    spec = env_spec(env)
+    """Exactly ``episodes`` episodes of uniformly random actions (for tests and small experiments)."""
     run = make_rollout(env, random_policy, episodes, horizon)
-    ro = jax.device_get(run(np.zeros(spec.act_dim, np.float32), (), jax.random.PRNGKey(seed)))
+    ro = jax.device_get(run(np.zeros(env_spec(env).act_dim, np.float32), (), jax.random.PRNGKey(seed)))
     return from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
 
 
-def resolve_dataset(env: str, dataset: str, *, episodes: int = 1000, horizon: int = 1000, seed: int = 0,
-                    verbose: bool = True) -> tuple[Trajectories, str]:
-    """Load ``dataset``: a path to a D4RL-layout hdf5 file, or a name in ``NAMED_DATASETS`` (generated into
-    the cache on first use with ``episodes``, ``horizon``, ``seed``). Returns the dataset and its file path."""
+def resolve_dataset(env: str, dataset: str, *, transitions: int = DEFAULT_TRANSITIONS, horizon: int = 1000,
+                    seed: int = 0, verbose: bool = True) -> tuple[Trajectories, str]:
+    """Load ``dataset``: a path to a D4RL-layout hdf5 file, or a name in ``NAMED_DATASETS`` (recorded into the
+    cache on first use). Returns the dataset and its file path."""
     if os.sep in dataset or dataset.endswith((".hdf5", ".h5")) or os.path.exists(dataset):
         return load_d4rl(dataset), dataset
     if dataset not in NAMED_DATASETS:
         raise DatasetError(f"unknown dataset {dataset!r}: give a path to a D4RL-layout .hdf5 file or one of "
                            f"{list(NAMED_DATASETS)}")
-    name = env_spec(env).name
-    path = os.path.join(cache_dir(), "datasets", f"{name}-{dataset}-e{episodes}-h{horizon}-s{seed}.hdf5")
-    if not os.path.exists(path):
-        if verbose:
-            print(f"generating {name}/{dataset} ({episodes} episodes, horizon {horizon}) in MJX -> {path}", flush=True)
-        t0 = time.time()
-        data = generate_random(name, episodes, horizon, seed)
-        save_d4rl(data, path)
-        if verbose:
-            print(f"  {data.num_trajectories} episodes, {data.num_transitions} transitions, return "
-                  f"{data.returns.mean():.1f} ± {data.returns.std():.1f} ({time.time() - t0:.0f} s)", flush=True)
-    return load_d4rl(path), path
+    if transitions < 1 or horizon < 1:
+        raise DatasetError(f"transitions and horizon must be >= 1, got {transitions} and {horizon}")
+    path = dataset_path(env, dataset, transitions, horizon, seed)
+    if os.path.exists(path):
+        return load_d4rl(path), path
+    t0 = time.time()
+    if dataset == "medium-expert":
+        parts = [resolve_dataset(env, d, transitions=transitions, horizon=horizon, seed=seed, verbose=verbose)[1]
+                 for d in ("medium", "expert")]
+        data = concatenate([load_d4rl(p) for p in parts])
+        infos = {k: np.concatenate([_read_infos(p)[k] for p in parts]) for k in _read_infos(parts[0])}
+    else:
+        data, infos = generate(env, dataset, transitions, horizon, seed, verbose)
+    save_d4rl(data, path, infos)
+    if verbose:
+        print(summary_line(env, dataset, data, time.time() - t0) + f" -> {path}", flush=True)
+    return data, path
+
+
+def summary(env: str, data: Trajectories) -> dict:
+    r = data.returns
+    ns = normalized_score(env, r)
+    return {"episodes": data.num_trajectories, "transitions": data.num_transitions, "return_mean": float(r.mean()),
+            "return_std": float(r.std()), "normalized_score_mean": float(ns.mean()),
+            "normalized_score_std": float(ns.std())}
+
+
+def summary_line(env: str, dataset: str, data: Trajectories, seconds: float | None = None) -> str:
+    s = summary(env, data)
+    line = (f"{env_spec(env).name}/{dataset}: {s['episodes']} episodes, {s['transitions']} transitions, return "
+            f"{s['return_mean']:.1f} ± {s['return_std']:.1f}, normalised score {s['normalized_score_mean']:.1f}")
+    return line + (f" ({seconds:.0f} s)" if seconds is not None else "")
+
+
+def _read_infos(path: str) -> dict:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return {k: f["infos"][k][()] for k in f["infos"]} if "infos" in f else {}

@@ -1,0 +1,336 @@
+"""Train a SAC behaviour policy in MJX, pmap-free, for making D4RL-style datasets.
+
+    python -m minsubdt_jax.behavior.train --env hopper --steps 300000        # runs/behavior/hopper
+    python -m minsubdt_jax.behavior.train --env hopper --steps 400000 --resume   # continue, or go further
+
+D4RL made its datasets with SAC; on 2 CPU cores brax's PPO stalled on hopper-mjx while SAC with one gradient
+update per transition learned in minutes (``../shared/NOTES.md``), so this is SAC: ``num_envs`` MJX
+environments under ``vmap``, and each jitted chunk is one ``lax.scan`` over (step every env, store the
+transitions, ``num_envs * updates_per_transition`` gradient updates). The replay buffer lives in the
+train state, so the whole chunk is one XLA program.
+
+Every ``eval_every`` env steps the stochastic policy is evaluated on ``eval_episodes`` 1000-step episodes
+and its actor saved as ``snapshots/step_XXXXXXXX.npz`` (listed with its return in ``snapshots.jsonl``):
+the snapshots are what datasets are recorded from. A checkpoint (orbax: networks, optimisers, replay
+buffer, counters) follows each evaluation; ``--resume`` restarts from it with freshly reset episodes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import orbax.checkpoint as ocp
+from flax import struct, traverse_util
+
+from ..config import add_flags
+from ..envs import ENVS, env_spec, make_env, make_rollout
+from ..rundir import check_run_dir, progress, truncate_metrics
+from .losses import Transition, actor_loss, alpha_loss, critic_loss
+from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
+
+RESUMABLE_CHANGES = ("steps", "out")
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """Every field is a ``--flag`` of ``python -m minsubdt_jax.behavior.train``."""
+
+    env: str = "hopper"
+    steps: int = 300_000  # environment steps (transitions) in total
+    seed: int = 0
+    out: str | None = None  # default runs/behavior/{env}
+    num_envs: int = 8
+    updates_per_transition: int = 1
+    batch_size: int = 256
+    hidden: int = 256  # width of the two hidden layers of actor and critics
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    buffer_size: int = 1_000_000  # replay capacity (transitions); fixed for the life of a run
+    min_replay: int = 10_000  # uniformly random actions until the buffer holds this many transitions
+    episode_length: int = 1000
+    chunk_steps: int = 2000  # env steps per jitted chunk (a log line after each)
+    eval_every: int = 10_000  # env steps between evaluation + snapshot + checkpoint
+    eval_episodes: int = 8
+
+    def run_dir(self) -> str:
+        return self.out or f"runs/behavior/{env_spec(self.env).name}"
+
+    @property
+    def capacity(self) -> int:
+        return -(-self.buffer_size // self.num_envs) * self.num_envs
+
+
+def validate(cfg: SACConfig) -> SACConfig:
+    env_spec(cfg.env)
+    for name in ("steps", "num_envs", "updates_per_transition", "batch_size", "hidden", "learning_rate",
+                 "buffer_size", "episode_length", "chunk_steps", "eval_every", "eval_episodes"):
+        if not getattr(cfg, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if not (0 < cfg.gamma < 1 and 0 < cfg.tau <= 1 and cfg.min_replay >= cfg.batch_size):
+        raise ValueError("need 0 < --gamma < 1, 0 < --tau <= 1 and --min-replay >= --batch-size")
+    for name in ("chunk_steps", "eval_every", "min_replay"):
+        if getattr(cfg, name) % cfg.num_envs:
+            raise ValueError(f"--{name.replace('_', '-')} must be a multiple of --num-envs ({cfg.num_envs})")
+    if cfg.eval_every % cfg.chunk_steps or cfg.min_replay % cfg.chunk_steps:
+        raise ValueError("--eval-every and --min-replay must be multiples of --chunk-steps")
+    return cfg
+
+
+@struct.dataclass
+class SACState:
+    actor_params: Any
+    critic_params: Any
+    target_critic_params: Any
+    log_alpha: jax.Array
+    actor_opt: Any
+    critic_opt: Any
+    alpha_opt: Any
+    buffer: Transition  # [capacity, ...]
+    buffer_pos: jax.Array  # next row to write
+    buffer_len: jax.Array  # rows filled
+    env_steps: jax.Array
+    episode_return: jax.Array  # [num_envs] running return of the current training episodes
+    episode_len: jax.Array  # [num_envs]
+    wall_seconds: jax.Array  # training wall time summed over resumptions
+    rng: jax.Array
+
+
+_CHUNKS: dict = {}  # compiled chunks, shared by SAC instances of equal settings (e.g. a run and its resumption)
+
+
+class SAC:
+    """Networks, optimisers and the jitted chunk for one :class:`SACConfig`."""
+
+    def __init__(self, cfg: SACConfig):
+        self.cfg = validate(cfg)
+        self.spec = env_spec(cfg.env)
+        self.env = make_env(cfg.env)
+        self.actor = Actor(self.spec.act_dim, (cfg.hidden, cfg.hidden))
+        self.critic = DoubleCritic((cfg.hidden, cfg.hidden))
+        self.tx = optax.adam(cfg.learning_rate)
+        self.target_entropy = -float(self.spec.act_dim)
+
+    def init(self, rng) -> tuple[SACState, Any]:
+        """A fresh state (empty buffer) and freshly reset environments."""
+        cfg, spec = self.cfg, self.spec
+        k_actor, k_critic, k_env, rng = jax.random.split(rng, 4)
+        obs, act = jnp.zeros((1, spec.obs_dim)), jnp.zeros((1, spec.act_dim))
+        actor_params = self.actor.init(k_actor, obs)
+        critic_params = self.critic.init(k_critic, obs, act)
+        log_alpha = jnp.zeros(())
+        C = cfg.capacity
+        buffer = Transition(obs=jnp.zeros((C, spec.obs_dim)), action=jnp.zeros((C, spec.act_dim)),
+                            reward=jnp.zeros(C), discount=jnp.zeros(C), next_obs=jnp.zeros((C, spec.obs_dim)))
+        z = jnp.zeros((), jnp.int32)
+        state = SACState(actor_params=actor_params, critic_params=critic_params, target_critic_params=critic_params,
+                         log_alpha=log_alpha, actor_opt=self.tx.init(actor_params),
+                         critic_opt=self.tx.init(critic_params), alpha_opt=self.tx.init(log_alpha), buffer=buffer,
+                         buffer_pos=z, buffer_len=z, env_steps=z, episode_return=jnp.zeros(cfg.num_envs),
+                         episode_len=jnp.zeros(cfg.num_envs, jnp.int32), wall_seconds=jnp.zeros(()), rng=rng)
+        return _distinct(state), self.reset_envs(k_env)
+
+    def reset_envs(self, rng):
+        return _distinct(jax.jit(jax.vmap(self.env.reset))(jax.random.split(rng, self.cfg.num_envs)))
+
+    def update(self, state: SACState, rng) -> tuple[SACState, dict]:
+        """One gradient update of critics, actor and temperature on a uniform batch from the buffer."""
+        cfg = self.cfg
+        k_idx, k_critic, k_actor = jax.random.split(rng, 3)
+        idx = jax.random.randint(k_idx, (cfg.batch_size,), 0, state.buffer_len)
+        batch = jax.tree.map(lambda x: x[idx], state.buffer)
+        c_loss, c_grad = jax.value_and_grad(critic_loss)(
+            state.critic_params, state.target_critic_params, state.actor_params, state.log_alpha, batch, k_critic,
+            actor=self.actor, critic=self.critic, gamma=cfg.gamma)
+        upd, critic_opt = self.tx.update(c_grad, state.critic_opt)
+        critic_params = optax.apply_updates(state.critic_params, upd)
+        (a_loss, logp), a_grad = jax.value_and_grad(actor_loss, has_aux=True)(
+            state.actor_params, critic_params, state.log_alpha, batch, k_actor, actor=self.actor, critic=self.critic)
+        upd, actor_opt = self.tx.update(a_grad, state.actor_opt)
+        actor_params = optax.apply_updates(state.actor_params, upd)
+        al_grad = jax.grad(alpha_loss)(state.log_alpha, logp, self.target_entropy)
+        upd, alpha_opt = self.tx.update(al_grad, state.alpha_opt)
+        log_alpha = optax.apply_updates(state.log_alpha, upd)
+        target = optax.incremental_update(critic_params, state.target_critic_params, cfg.tau)
+        state = state.replace(actor_params=actor_params, critic_params=critic_params, target_critic_params=target,
+                              log_alpha=log_alpha, actor_opt=actor_opt, critic_opt=critic_opt, alpha_opt=alpha_opt)
+        return state, {"critic_loss": c_loss, "actor_loss": a_loss, "alpha": jnp.exp(log_alpha),
+                       "entropy": -jnp.mean(logp)}
+
+    def env_step(self, state: SACState, env_state, explore: bool):
+        """Step every env once (uniform actions if ``explore``, else the stochastic actor), store the
+        transitions, reset ended episodes. Returns ``(state, env_state, (completed return sum, count))``."""
+        cfg, n = self.cfg, self.cfg.num_envs
+        rng, k_act, k_reset = jax.random.split(state.rng, 3)
+        if explore:
+            action = jax.random.uniform(k_act, (n, self.spec.act_dim), minval=-1.0, maxval=1.0)
+        else:
+            action, _ = sample_tanh_gaussian(*self.actor.apply(state.actor_params, env_state.obs), k_act)
+        nstate = jax.vmap(self.env.step)(env_state, action)
+        terminal = nstate.done > 0
+        ep_len = state.episode_len + 1
+        ep_ret = state.episode_return + nstate.reward
+        ended = terminal | (ep_len >= cfg.episode_length)
+        rows = Transition(obs=env_state.obs, action=action, reward=nstate.reward,
+                          discount=1.0 - terminal.astype(jnp.float32), next_obs=nstate.obs)
+        buffer = jax.tree.map(lambda b, r: jax.lax.dynamic_update_slice_in_dim(b, r, state.buffer_pos, 0),
+                              state.buffer, rows)
+        fresh = jax.lax.cond(jnp.any(ended), lambda: jax.vmap(self.env.reset)(jax.random.split(k_reset, n)),
+                             lambda: nstate)
+        env_state = jax.tree.map(lambda f, s: jnp.where(ended.reshape(ended.shape + (1,) * (s.ndim - 1)), f, s),
+                                 fresh, nstate)
+        state = state.replace(buffer=buffer, buffer_pos=(state.buffer_pos + n) % cfg.capacity,
+                              buffer_len=jnp.minimum(state.buffer_len + n, cfg.capacity),
+                              env_steps=state.env_steps + n, episode_return=jnp.where(ended, 0.0, ep_ret),
+                              episode_len=jnp.where(ended, 0, ep_len), rng=rng)
+        return state, env_state, (jnp.sum(jnp.where(ended, ep_ret, 0.0)), jnp.sum(ended))
+
+    def chunk(self, explore: bool):
+        """Jitted ``chunk(state, env_state) -> (state, env_state, metrics)`` over ``chunk_steps`` env steps;
+        no gradient updates while ``explore`` (the random-action warm-up)."""
+        key = (dataclasses.replace(self.cfg, steps=1, out=None), explore)  # what the program depends on
+        if key in _CHUNKS:
+            return _CHUNKS[key]
+        cfg = self.cfg
+        n_updates = cfg.num_envs * cfg.updates_per_transition
+
+        def iteration(carry, _):
+            state, env_state = carry
+            state, env_state, (ret_sum, count) = self.env_step(state, env_state, explore)
+            if explore:
+                info = {}
+            else:
+                rng, k = jax.random.split(state.rng)
+                state, info = jax.lax.scan(self.update, state.replace(rng=rng), jax.random.split(k, n_updates))
+                info = jax.tree.map(jnp.mean, info)
+            return (state, env_state), (ret_sum, count, info)
+
+        def chunk(state, env_state):
+            (state, env_state), (ret_sum, count, info) = jax.lax.scan(
+                iteration, (state, env_state), None, length=cfg.chunk_steps // cfg.num_envs)
+            metrics = jax.tree.map(jnp.mean, info)
+            metrics["train_return_sum"], metrics["train_episodes"] = jnp.sum(ret_sum), jnp.sum(count)
+            return state, env_state, metrics
+
+        _CHUNKS[key] = jax.jit(chunk, donate_argnums=(0, 1))
+        return _CHUNKS[key]
+
+    def evaluate(self, actor_params, rng) -> np.ndarray:
+        """Returns ``[eval_episodes]`` of the stochastic policy over ``episode_length``-step episodes."""
+        run = make_rollout(self.cfg.env, policy_step, self.cfg.eval_episodes, self.cfg.episode_length)
+        return np.asarray(jax.device_get(run(actor_params, (), rng).rewards.sum(1)))
+
+
+def _distinct(tree):
+    """Copy every leaf, so no two leaves share a buffer (the chunk donates its inputs)."""
+    return jax.tree.map(jnp.copy, tree)
+
+
+def save_snapshot(path: str, actor_params, **meta) -> None:
+    """Actor parameters as a flat ``.npz`` (``params/torso/Dense_0/kernel`` …) plus scalar metadata."""
+    flat = traverse_util.flatten_dict(jax.device_get(actor_params), sep="/")
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, **{k: np.asarray(v, np.float32) for k, v in flat.items()},
+             **{f"meta/{k}": np.asarray(v) for k, v in meta.items()})
+    os.replace(tmp, path)
+
+
+def load_snapshot(path: str) -> tuple[Any, dict]:
+    """``(actor_params, meta)`` saved by :func:`save_snapshot`."""
+    with np.load(path) as z:
+        params = traverse_util.unflatten_dict({k: z[k] for k in z.files if not k.startswith("meta/")}, sep="/")
+        meta = {k[5:]: z[k].item() for k in z.files if k.startswith("meta/")}
+    return params, meta
+
+
+def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[dict]:
+    """Train (or continue) in ``cfg.run_dir()``; returns the snapshot records (``snapshots.jsonl``)."""
+    sac = SAC(cfg)
+    out = cfg.run_dir()
+    ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
+    check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
+    os.makedirs(os.path.join(out, "snapshots"), exist_ok=True)
+    with open(os.path.join(out, "config.json"), "w") as f:
+        json.dump(dataclasses.asdict(cfg), f, indent=2, sort_keys=True)
+    state, env_state = sac.init(jax.random.PRNGKey(cfg.seed))
+    mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=1, create=True))
+    if resume:
+        state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
+        env_state = sac.reset_envs(jax.random.fold_in(state.rng, 1))
+        if verbose:
+            print(f"resumed from env step {int(state.env_steps)}", flush=True)
+    start = int(state.env_steps)
+    metrics_path, snaps_path = os.path.join(out, "metrics.jsonl"), os.path.join(out, "snapshots.jsonl")
+    truncate_metrics(metrics_path, start)
+    truncate_metrics(snaps_path, start)
+    bar = progress(total=cfg.steps, initial=start, disable=not verbose, unit="env-step")
+    last_return = float("nan")
+    while int(state.env_steps) < cfg.steps:
+        t0 = time.time()
+        explore = int(state.env_steps) < cfg.min_replay
+        state, env_state, m = sac.chunk(explore)(state, env_state)
+        m = {k: float(v) for k, v in jax.device_get(m).items()}
+        state = state.replace(wall_seconds=state.wall_seconds + (time.time() - t0))
+        step = int(state.env_steps)
+        if m["train_episodes"]:
+            last_return = m["train_return_sum"] / m["train_episodes"]
+        row = {"step": step, "wall_seconds": float(state.wall_seconds), "train_return": last_return,
+               **{k: v for k, v in m.items() if k not in ("train_return_sum",)}}
+        with open(metrics_path, "a") as f:
+            f.write(json.dumps(row) + "\n")
+        if step % cfg.eval_every == 0 or step >= cfg.steps:
+            te = time.time()
+            returns = sac.evaluate(state.actor_params, jax.random.fold_in(jax.random.PRNGKey(cfg.seed + 1), step))
+            name = f"step_{step:08d}.npz"
+            save_snapshot(os.path.join(out, "snapshots", name), state.actor_params, env=sac.spec.name, step=step,
+                          return_mean=returns.mean())
+            rec = {"step": step, "snapshot": name, "return_mean": float(returns.mean()),
+                   "return_std": float(returns.std()), "episodes": len(returns),
+                   "wall_seconds": float(state.wall_seconds), "eval_seconds": time.time() - te}
+            with open(snaps_path, "a") as f:
+                f.write(json.dumps(rec) + "\n")
+            mngr.save(step, args=ocp.args.StandardSave(state))
+            mngr.wait_until_finished()
+            if verbose:
+                bar.write(f"step {step}: eval return {rec['return_mean']:.1f} ± {rec['return_std']:.1f} "
+                          f"({rec['episodes']} episodes), wall {rec['wall_seconds']:.0f} s")
+        bar.set_postfix(ret=f"{last_return:.0f}", alpha=f"{m.get('alpha', 1.0):.3f}")
+        bar.update(cfg.chunk_steps)
+    bar.close()
+    with open(snaps_path) as f:
+        return [json.loads(ln) for ln in f if ln.strip()]
+
+
+def parse_args(argv=None) -> tuple[SACConfig, bool]:
+    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.behavior.train",
+                                description="Train a SAC behaviour policy in MJX (snapshots for datasets).")
+    add_flags(p, SACConfig, {"env": tuple(ENVS)})
+    p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
+    args = vars(p.parse_args(argv))
+    resume = args.pop("resume")
+    return validate(SACConfig(**{k: v for k, v in args.items() if v is not None})), resume
+
+
+def main(argv=None) -> int:
+    try:
+        cfg, resume = parse_args(argv)
+        train(cfg, resume=resume)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,43 @@
+"""``python -m minsubdt_jax.data --env walker --dataset medium``: record a named dataset into the cache."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from ..envs import ENVS
+from .dataset import DatasetError
+from .generate import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary_line
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.data",
+                                description="Record a D4RL-style dataset in MJX from the committed behaviour policies.")
+    p.add_argument("--env", required=True, choices=tuple(ENVS))
+    p.add_argument("--dataset", required=True, choices=NAMED_DATASETS)
+    p.add_argument("--transitions", type=int, default=DEFAULT_TRANSITIONS,
+                   help=f"at least this many transitions, in whole episodes (default {DEFAULT_TRANSITIONS}; "
+                        "D4RL: 1000000); medium-expert holds twice this")
+    p.add_argument("--horizon", type=int, default=1000, help="episode length before a time-out")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--force", action="store_true", help="record again even if the cache holds the file")
+    a = p.parse_args(argv)
+    try:
+        path = dataset_path(a.env, a.dataset, a.transitions, a.horizon, a.seed)
+        if a.force and os.path.exists(path):
+            os.remove(path)
+        cached = os.path.exists(path)
+        t0 = time.time()
+        data, path = resolve_dataset(a.env, a.dataset, transitions=a.transitions, horizon=a.horizon, seed=a.seed)
+        if cached:
+            print(summary_line(a.env, a.dataset, data, time.time() - t0) + f" (cached: {path})")
+    except (DatasetError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,82 @@
+"""Named datasets recorded in MJX from the committed behaviour policies (hopper: the cheapest env)."""
+
+import h5py
+import numpy as np
+import pytest
+
+from minsubdt_jax.behavior.policies import load_manifest
+from minsubdt_jax.data import generate, load_d4rl, resolve_dataset
+from minsubdt_jax.data.__main__ import main as data_main
+from minsubdt_jax.envs import env_spec, normalized_score, reference_returns
+
+pytestmark = pytest.mark.slow
+SMALL = dict(transitions=2000, horizon=1000)  # 8 parallel 1000-step episodes per rollout call
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    mp.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="module")
+def recorded(cache):
+    return {d: resolve_dataset("hopper", d, **SMALL, verbose=False) for d in ("random", "medium", "expert")}
+
+
+def test_generation_is_deterministic_for_a_seed(recorded):
+    medium, _ = recorded["medium"]
+    again, _ = generate("hopper", "medium", **SMALL, seed=0, verbose=False)
+    other, _ = generate("hopper", "medium", **SMALL, seed=1, verbose=False)
+    for name in ("observations", "actions", "rewards", "lengths", "terminals"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(medium, name))
+    assert not np.array_equal(other.returns, medium.returns)
+
+
+def test_datasets_reach_the_requested_size_in_whole_episodes(recorded):
+    for name, (data, _) in recorded.items():
+        assert data.num_transitions >= 2000, name
+        assert data.num_transitions - data.lengths[-1] < 2000, name  # the last episode crossed the target
+        assert data.max_len <= 1000
+        timeouts = ~data.terminals
+        assert np.all(data.lengths[timeouts[:-1].nonzero()[0]] == 1000)  # time-outs are full-horizon episodes
+
+
+def test_medium_is_between_random_and_expert(recorded):
+    r = {d: recorded[d][0].returns.mean() for d in recorded}
+    assert r["random"] < r["medium"] < r["expert"], r
+    lo, hi = reference_returns("hopper")
+    refs = load_manifest("hopper")["references"]
+    assert refs["random"]["episodes"] >= 100 and refs["expert"]["episodes"] >= 100
+    np.testing.assert_allclose(normalized_score("hopper", [lo, hi]), [0.0, 100.0])
+
+
+def test_medium_expert_file_is_medium_and_expert_in_d4rl_layout(recorded):
+    data, path = resolve_dataset("hopper", "medium-expert", **SMALL, verbose=False)
+    medium, expert = recorded["medium"][0], recorded["expert"][0]
+    assert data.num_trajectories == medium.num_trajectories + expert.num_trajectories
+    np.testing.assert_array_equal(data.returns, np.concatenate([medium.returns, expert.returns]))
+    loaded = load_d4rl(path)
+    np.testing.assert_array_equal(loaded.lengths, data.lengths)
+    with h5py.File(path) as f:
+        n = f["observations"].shape[0]
+        assert n == data.num_transitions and f["terminals"].dtype == bool and f["timeouts"].dtype == bool
+        assert f["infos/qpos"].shape == (n, 6) and f["infos/qvel"].shape == (n, 6)
+        # independent check of the infos against gym's observation layout (brax follows it): torso height
+        # (the torso's centre: rootz + 1.25 m, moved by the torso's tilt), qpos[2:], then qvel clipped to [-10, 10]
+        obs, qpos, qvel = f["observations"][()], f["infos/qpos"][()], f["infos/qvel"][()]
+        np.testing.assert_allclose(obs[:, 0], qpos[:, 1] + 1.25, atol=0.1)
+        np.testing.assert_allclose(obs[:, 1:5], qpos[:, 2:], atol=1e-5)
+        np.testing.assert_allclose(obs[:, 5:], np.clip(qvel, -10, 10), atol=1e-5)
+        np.testing.assert_array_equal(f["infos/x_velocity"][()], qvel[:, 0])
+        assert env_spec("hopper").x_velocity_index == 5
+
+
+def test_cli_summary_and_bad_input(recorded, capsys):
+    assert data_main(["--env", "hopper", "--dataset", "medium", "--transitions", "2000"]) == 0
+    out = capsys.readouterr().out
+    assert "hopper/medium:" in out and "normalised score" in out and "cached" in out
+    assert data_main(["--env", "hopper", "--dataset", "medium", "--transitions", "0"]) == 2
+    assert "transitions and horizon must be >= 1" in capsys.readouterr().err
