@@ -93,3 +93,16 @@ def test_existing_run_needs_resume(full_run, small_dataset_path, cli_env):
     p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--resume", "--batch-size", "4"], cli_env,
              check=False)
     assert p.returncode == 2 and "config differs" in p.stderr and "batch_size" in p.stderr
+
+
+def test_named_dataset_is_recorded_on_first_use_then_reused(tmp_path, cli_env):
+    """``--dataset medium`` records hopper medium from the committed policy into the cache, once."""
+    args = [*SMOKE, "--dataset", "medium", "--steps", "10", "--eval-episodes", "0"]
+    p = _run([*args, "--out", str(tmp_path / "a")], cli_env)
+    assert "hopper/medium:" in p.stdout and "transitions" in p.stdout  # the recording summary
+    res = json.loads((tmp_path / "a" / "results.json").read_text())["dataset"]
+    assert res["path"].startswith(cli_env["XDG_CACHE_HOME"]) and "hopper-medium-t2000-h60-s0" in res["path"]
+    assert res["transitions"] >= 2000 and os.path.exists(res["path"])
+    p = _run([*args, "--out", str(tmp_path / "b")], cli_env)
+    assert "hopper/medium:" not in p.stdout  # loaded from the cache, not recorded again
+    assert json.loads((tmp_path / "b" / "results.json").read_text())["dataset"] == res

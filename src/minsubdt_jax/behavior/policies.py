@@ -18,6 +18,7 @@ policy's and the expert's mean return over ``--reference-episodes`` stochastic 1
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import os
@@ -29,7 +30,7 @@ import numpy as np
 
 from ..envs import ENVS, env_spec, make_rollout, random_policy
 from .networks import policy_step
-from .train import load_snapshot
+from .train import SACConfig, load_snapshot
 
 POLICY_DIR = os.path.join(os.path.dirname(__file__), "snapshots")
 MEDIUM_RANGE = (0.35, 0.6)
@@ -122,8 +123,8 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
         "replay": [{k: s[k] for k in keep} for s in replay_snaps],
         "training": {"config": run_cfg, "env_steps": last["step"], "wall_seconds": last["wall_seconds"],
                      "curve": [{k: s[k] for k in ("step", "wall_seconds", "return_mean")} for s in snaps]},
-        "commands": [f"python -m minsubdt_jax.behavior.train --env {name} --steps {run_cfg['steps']} "
-                     f"--seed {run_cfg['seed']}",
+        # --steps: where the run's snapshots end (a run may be stopped early, or resumed further)
+        "commands": [_train_command({**run_cfg, "steps": snaps[-1]["step"]}),
                      f"python -m minsubdt_jax.behavior.policies --env {name} --run {run} --medium-ratio "
                      f"{medium_ratio} --replay {replay} --reference-episodes {reference_episodes}"],
     }
@@ -133,6 +134,14 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
     say(f"medium step {medium['step']} (ratio {medium['ratio']:.2f}); replay steps "
         f"{[s['step'] for s in replay_snaps]} -> {out}")
     return manifest
+
+
+def _train_command(run_cfg: dict) -> str:
+    """The ``behavior.train`` command line that reproduces ``run_cfg`` (fields off their defaults)."""
+    defaults = dataclasses.asdict(SACConfig())
+    flags = [f"--{k.replace('_', '-')} {v}" for k, v in run_cfg.items()
+             if k not in ("env", "out") and v != defaults.get(k)]
+    return " ".join(["python -m minsubdt_jax.behavior.train --env", run_cfg["env"], *flags])
 
 
 def main(argv=None) -> int:
