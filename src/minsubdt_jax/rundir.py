@@ -1,10 +1,12 @@
-"""Run-directory helpers shared by the trainers: resume checks, metric-log truncation, progress bar."""
+"""Helpers shared by the command-line programs: resume checks, metric-log truncation, progress bar, and one
+clear ``error:`` line (exit 2) for bad input."""
 
 from __future__ import annotations
 
 import json
 import os
 import sys
+from typing import Callable
 
 
 def check_run_dir(config: dict, out: str, ckpt_dir: str, resume: bool, resumable: tuple[str, ...]) -> None:
@@ -39,3 +41,14 @@ def progress(total: int, initial: int, disable: bool, unit: str = "step"):
 
     return tqdm(total=total, initial=initial, disable=disable, unit=unit, dynamic_ncols=True, file=sys.stdout,
                 mininterval=1.0)
+
+
+def exit_code(run: Callable[[], object]) -> int:
+    """Run a command's body: 0 on success; on bad input (``ValueError``, which ``DatasetError`` is) one
+    ``error:`` line on stderr, no traceback, and 2."""
+    try:
+        run()
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0

@@ -34,7 +34,7 @@ from .data.sampler import Batch, SamplerData
 from .envs import REFERENCE_SOURCE, normalized_score
 from .evaluate import PolicyParams, evaluate
 from .model import DecisionTransformer
-from .rundir import check_run_dir, progress, truncate_metrics
+from .rundir import check_run_dir, exit_code, progress, truncate_metrics
 from .subdominance import min_subdominance, returns_to_go, surrogate_rewards
 
 # Fields that may differ between a run and its resumption.
@@ -227,13 +227,7 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
 
 
 def main(argv=None) -> int:
-    try:
-        cfg, resume = parse_args(argv)
-        train(cfg, resume=resume)
-    except ValueError as e:  # DatasetError is a ValueError: one clear message, no traceback
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return exit_code(lambda: train(*parse_args(argv)))
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ import sys
 import jax
 import numpy as np
 
+from ..rundir import exit_code
 from ..envs import ENVS, env_spec, make_rollout, random_policy
 from .networks import policy_step
 from .train import SACConfig, load_snapshot
@@ -152,12 +153,7 @@ def main(argv=None) -> int:
     p.add_argument("--replay", type=int, default=8)
     p.add_argument("--reference-episodes", type=int, default=100)
     a = p.parse_args(argv)
-    try:
-        export(a.env, a.run, a.medium_ratio, a.replay, a.reference_episodes)
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return exit_code(lambda: export(a.env, a.run, a.medium_ratio, a.replay, a.reference_episodes))
 
 
 if __name__ == "__main__":

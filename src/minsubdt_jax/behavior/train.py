@@ -35,7 +35,7 @@ from flax import struct, traverse_util
 
 from ..config import add_flags
 from ..envs import ENVS, env_spec, make_env, make_rollout
-from ..rundir import check_run_dir, progress, truncate_metrics
+from ..rundir import check_run_dir, exit_code, progress, truncate_metrics
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
 from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
 
@@ -323,13 +323,7 @@ def parse_args(argv=None) -> tuple[SACConfig, bool]:
 
 
 def main(argv=None) -> int:
-    try:
-        cfg, resume = parse_args(argv)
-        train(cfg, resume=resume)
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return exit_code(lambda: train(*parse_args(argv)))
 
 
 if __name__ == "__main__":

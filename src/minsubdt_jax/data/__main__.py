@@ -8,6 +8,7 @@ import sys
 import time
 
 from ..envs import ENVS
+from ..rundir import exit_code
 from .dataset import DatasetError
 from .generate import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary_line
 
@@ -24,20 +25,20 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--force", action="store_true", help="record again even if the cache holds the file")
     a = p.parse_args(argv)
-    try:
-        path = dataset_path(a.env, a.dataset, a.transitions, a.horizon, a.seed)
-        if a.force and os.path.exists(path):
-            os.remove(path)
-        cached = os.path.exists(path)
-        t0 = time.time()
-        data, path = resolve_dataset(a.env, a.dataset, transitions=a.transitions, horizon=a.horizon, seed=a.seed)
-        if cached:
-            print(summary_line(a.env, a.dataset, data, time.time() - t0) + f" (cached: {path})")
-    except (DatasetError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    return exit_code(lambda: record(a.env, a.dataset, a.transitions, a.horizon, a.seed, a.force))
 
+
+def record(env: str, dataset: str, transitions: int, horizon: int, seed: int, force: bool) -> None:
+    if transitions < 1 or horizon < 1:
+        raise DatasetError(f"transitions and horizon must be >= 1, got {transitions} and {horizon}")
+    path = dataset_path(env, dataset, transitions, horizon, seed)
+    if force and os.path.exists(path):
+        os.remove(path)
+    cached = os.path.exists(path)
+    t0 = time.time()
+    data, path = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed)
+    if cached:
+        print(summary_line(env, dataset, data, time.time() - t0) + f" (cached: {path})")
 
 if __name__ == "__main__":
     sys.exit(main())
