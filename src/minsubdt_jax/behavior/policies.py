@@ -60,12 +60,17 @@ def load_replay_policies(env: str) -> list:
     return [load_snapshot(os.path.join(d, r["snapshot"]))[0] for r in load_manifest(env)["replay"]]
 
 
+def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int):
+    """``(run, params)``: the cached jitted rollout of the stochastic actor ``actor_params`` (``None``: uniform
+    random actions) over ``episodes`` parallel episodes, and the parameters to call it with."""
+    if actor_params is None:
+        return make_rollout(env, random_policy, episodes, horizon), np.zeros(env_spec(env).act_dim, np.float32)
+    return make_rollout(env, policy_step, episodes, horizon), actor_params
+
+
 def measure_return(env: str, actor_params, episodes: int, horizon: int = 1000, seed: int = 0) -> dict:
     """Mean ± std return of ``episodes`` stochastic episodes (``actor_params=None``: uniform random actions)."""
-    if actor_params is None:
-        run, params = make_rollout(env, random_policy, episodes, horizon), np.zeros(env_spec(env).act_dim, np.float32)
-    else:
-        run, params = make_rollout(env, policy_step, episodes, horizon), actor_params
+    run, params = make_policy_rollout(env, actor_params, episodes, horizon)
     ro = jax.device_get(run(params, (), jax.random.PRNGKey(seed)))
     r = np.asarray(ro.rewards).sum(1)
     return {"return_mean": float(r.mean()), "return_std": float(r.std()), "episodes": int(episodes),

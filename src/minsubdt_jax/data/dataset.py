@@ -154,11 +154,14 @@ def concatenate(parts: list[Trajectories]) -> Trajectories:
     """All episodes of ``parts`` in order, padded to the longest."""
     if not parts:
         raise DatasetError("nothing to concatenate")
-    T = max(p.max_len for p in parts)
+    cat = lambda name: pad_concat([getattr(p, name) for p in parts])  # noqa: E731
+    return Trajectories(cat("observations"), cat("actions"), cat("rewards"), cat("lengths"), cat("terminals"))
 
-    def cat(name):
-        xs = [getattr(p, name) for p in parts]
-        return np.concatenate([np.pad(x, [(0, 0), (0, T - x.shape[1])] + [(0, 0)] * (x.ndim - 2)) for x in xs])
 
-    return Trajectories(cat("observations"), cat("actions"), cat("rewards"),
-                        np.concatenate([p.lengths for p in parts]), np.concatenate([p.terminals for p in parts]))
+def pad_concat(xs) -> np.ndarray:
+    """Concatenate per-episode arrays ``[n_i, T_i, ...]`` along episodes, zero-padding time to the longest
+    (``[n_i]`` arrays are simply concatenated)."""
+    if xs[0].ndim < 2:
+        return np.concatenate(xs)
+    T = max(x.shape[1] for x in xs)
+    return np.concatenate([np.pad(x, [(0, 0), (0, T - x.shape[1])] + [(0, 0)] * (x.ndim - 2)) for x in xs])

@@ -25,9 +25,9 @@ import time
 import jax
 import numpy as np
 
-from ..envs import env_spec, make_rollout, normalized_score, random_policy
+from ..envs import env_spec, normalized_score
 from .d4rl import load_d4rl, save_d4rl
-from .dataset import DatasetError, Trajectories, concatenate, from_padded
+from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
 
 NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
 DEFAULT_TRANSITIONS = 100_000
@@ -48,15 +48,11 @@ def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: i
 def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None) -> tuple[Trajectories, dict]:
     """Whole episodes of one policy (``actor_params=None``: uniform random actions) in batched MJX until they
     hold at least ``transitions`` transitions. Returns the episodes and their flat per-step ``infos``."""
-    from ..behavior.networks import policy_step
+    from ..behavior.policies import make_policy_rollout
 
     # enough episodes in one call when they average a quarter of the horizon; one compiled shape per call site
     batch = max(1, min(MAX_BATCH, 4 * math.ceil(transitions / horizon)))
-    if actor_params is None:
-        policy, actor_params = random_policy, np.zeros(env_spec(env).act_dim, np.float32)
-    else:
-        policy = policy_step
-    run = make_rollout(env, policy, batch, horizon)
+    run, actor_params = make_policy_rollout(env, actor_params, batch, horizon)
     parts, total, i = [], 0, 0
     while total < transitions:
         ro = jax.device_get(run(actor_params, (), jax.random.fold_in(rng, i)))
@@ -69,20 +65,12 @@ def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=Non
         i += 1
         if bar is not None:
             bar.update(added)
-    ro = jax.tree.map(lambda *xs: _pad_cat(xs), *parts)
+    ro = jax.tree.map(lambda *xs: pad_concat(xs), *parts)
     data = from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
     mask = data.valid_mask()
     qpos, qvel = ro.qpos[:, :data.max_len][mask], ro.qvel[:, :data.max_len][mask]
     infos = {"qpos": qpos, "qvel": qvel, "x_velocity": qvel[:, 0], "z_velocity": qvel[:, 1]}
     return data, infos
-
-
-def _pad_cat(xs):
-    """Concatenate ``[n_i, T_i, ...]`` arrays along episodes, zero-padding time to the longest."""
-    if xs[0].ndim < 2:
-        return np.concatenate(xs)
-    T = max(x.shape[1] for x in xs)
-    return np.concatenate([np.pad(x, [(0, 0), (0, T - x.shape[1])] + [(0, 0)] * (x.ndim - 2)) for x in xs])
 
 
 def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, horizon: int = 1000, seed: int = 0,
@@ -110,8 +98,10 @@ def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, hor
 
 def generate_random(env: str, episodes: int, horizon: int, seed: int) -> Trajectories:
     """Exactly ``episodes`` episodes of uniformly random actions (for tests and small experiments)."""
-    run = make_rollout(env, random_policy, episodes, horizon)
-    ro = jax.device_get(run(np.zeros(env_spec(env).act_dim, np.float32), (), jax.random.PRNGKey(seed)))
+    from ..behavior.policies import make_policy_rollout
+
+    run, params = make_policy_rollout(env, None, episodes, horizon)
+    ro = jax.device_get(run(params, (), jax.random.PRNGKey(seed)))
     return from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
 
 
