@@ -63,7 +63,7 @@ def main():
     p.add_argument("--sizes", type=int, nargs="+", default=[2000])
     p.add_argument("--ks", type=int, nargs="+", default=[2])
     p.add_argument("--loo", choices=["yes", "no", "both"], default="yes")
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--optax-max", type=int, default=10000, help="largest N for method='optax'")
     p.add_argument("--pairwise-max", type=int, default=10000, help="largest N for pairwise_subdominance")
     p.add_argument("--numpy-max", type=int, default=2000, help="largest N for the numpy loop")

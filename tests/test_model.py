@@ -60,3 +60,37 @@ def test_padding_is_ignored():
     # and equals running the model on the real part alone (time embedding identical)
     short = {k: v[:, 2:] for k, v in x.items()}
     np.testing.assert_allclose(model.apply(params, **short), base[:, 2:], atol=1e-5)
+
+
+def test_hash_dropout_keep_rate_scale_and_independence():
+    from minsubdt_jax.model import hash_dropout
+
+    x = jnp.ones((400, 500))
+    a = hash_dropout(jax.random.PRNGKey(0), 0.1, x)
+    kept = np.asarray(a) != 0
+    # kept entries are scaled by 1/(1 - rate); the keep rate is 0.9 within 5 binomial standard deviations
+    np.testing.assert_allclose(np.asarray(a)[kept], 1 / 0.9, rtol=1e-6)
+    assert abs(kept.mean() - 0.9) < 5 * np.sqrt(0.9 * 0.1 / x.size)
+    # no structure along rows or columns: every row's and column's keep rate is plausible
+    assert abs(kept.mean(1) - 0.9).max() < 6 * np.sqrt(0.09 / 500)
+    assert abs(kept.mean(0) - 0.9).max() < 6 * np.sqrt(0.09 / 400)
+    # same key, same mask; another key, a mask agreeing only as often as independent ones would (0.82)
+    np.testing.assert_array_equal(np.asarray(hash_dropout(jax.random.PRNGKey(0), 0.1, x)), np.asarray(a))
+    other = np.asarray(hash_dropout(jax.random.PRNGKey(1), 0.1, x)) != 0
+    assert abs((kept == other).mean() - 0.82) < 0.01
+    # the expectation is preserved, and rate 0 is the identity
+    assert abs(float(a.mean()) - 1.0) < 0.01
+    assert hash_dropout(jax.random.PRNGKey(0), 0.0, x) is x
+
+
+def test_dropout_is_active_in_training_mode_only():
+    model = DecisionTransformer(act_dim=ACT, embed_dim=32, n_layers=2, n_heads=2, dropout=0.3, max_timestep=50)
+    x = _inputs()
+    params = model.init(jax.random.PRNGKey(0), **x)
+    det = model.apply(params, **x)
+    np.testing.assert_array_equal(model.apply(params, **x, deterministic=True), det)
+    t1 = model.apply(params, **x, deterministic=False, rngs={"dropout": jax.random.PRNGKey(1)})
+    t1b = model.apply(params, **x, deterministic=False, rngs={"dropout": jax.random.PRNGKey(1)})
+    t2 = model.apply(params, **x, deterministic=False, rngs={"dropout": jax.random.PRNGKey(2)})
+    np.testing.assert_array_equal(t1, t1b)
+    assert not np.allclose(t1, det) and not np.allclose(t1, t2)

@@ -147,6 +147,29 @@ def test_bad_shapes():
         pairwise_subdominance(np.zeros((3, 2)), np.zeros((3, 2)), np.ones(3), 1.0)
 
 
+@pytest.mark.parametrize("to_jax", [False, True])
+def test_non_finite_features_are_rejected(to_jax):
+    F = np.zeros((3, 2))
+    G = np.ones((4, 2))
+    G[2, 1] = np.nan
+    conv = jnp.asarray if to_jax else np.asarray
+    with pytest.raises(ValueError, match="finite"):
+        min_subdominance(conv(F), conv(G))
+    with pytest.raises(ValueError, match="finite"):
+        min_subdominance(conv(G), conv(np.ones((4, 2))), leave_one_out=True)
+
+
+def test_sort_rows_matches_numpy_including_signed_zeros_and_extremes():
+    """The integer-key sort of the exact solver orders floats exactly as numpy does."""
+    from minsubdt_jax.subdominance import _sort_rows
+
+    rng = np.random.default_rng(0)
+    special = np.array([0.0, -0.0, 1e-45, -1e-45, 3.4e38, -3.4e38, np.inf, -np.inf, 1.0, -1.0], np.float32)
+    a = np.stack([rng.permutation(np.concatenate([special, rng.normal(size=90).astype(np.float32)]))
+                  for _ in range(3)])
+    np.testing.assert_array_equal(np.asarray(_sort_rows(jnp.asarray(a))), np.sort(a, axis=1))
+
+
 def test_surrogate_rewards_and_returns_to_go():
     ms = jnp.array([0.5, 2.0])
     lengths = jnp.array([3, 1])

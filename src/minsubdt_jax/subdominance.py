@@ -152,30 +152,35 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     M = G.shape[0]
     # Orderings and ties use the raw values (x, s), so a demo equal to x always compares equal to it. Sums use
     # values shifted by the demo mean (xc, P): better rounding, and a shift leaves every difference unchanged.
+    # Per-feature tables are stored flat, feature-major ([K * M]), so every lookup is a 1-D gather.
     center = jnp.mean(G, axis=0)
     x = F  # [N, K]
     xc = F - center
-    order = jnp.argsort(G, axis=0)  # [M, K]
-    s = jnp.take_along_axis(G, order, axis=0)  # [M, K] sorted per feature
-    sc = s - center
-    P = jnp.concatenate([jnp.zeros((1, K), s.dtype), jnp.cumsum(sc, axis=0)])  # [M+1, K] shifted prefix sums
-    cols = jnp.arange(K)[None, :]
+    s_km = _sort_rows(G.T)  # [K, M]
+    s_flat = s_km.reshape(-1)  # [K * M] sorted per feature
+    sc_km = s_km - center[:, None]
+    P_flat = jnp.concatenate([jnp.zeros((K, 1), s_km.dtype), jnp.cumsum(sc_km, axis=1)], axis=1).reshape(-1)
+    sc_flat = sc_km.reshape(-1)
+    cols = jnp.arange(K, dtype=jnp.int32)[None, :]
     if leave_one_out:
-        p = jnp.zeros((M, K), jnp.int32).at[order, cols].set(jnp.arange(M, dtype=jnp.int32)[:, None])  # rank
+        # rank of row i's own demo G_i among the sorted demos (the first of its ties: removing any one of
+        # equal values leaves the same multiset)
+        p = jax.vmap(lambda col, q: jnp.searchsorted(col, q, side="left"), in_axes=(0, 1), out_axes=1)(s_km, G)
+        p = p.astype(jnp.int32)
         m_eff = M - 1
     else:
         p = jnp.full((N, K), M, jnp.int32)  # nothing removed
         m_eff = M
-    sc_p = sc[jnp.minimum(p, M - 1), cols]  # shifted value of the removed demo (unused when none is removed)
+    sc_p = sc_flat[cols * M + jnp.minimum(p, M - 1)]  # shifted value of the removed demo (unused when none)
 
     def prefix(m):  # sum of the m smallest remaining demos, shifted by center, m in [0, m_eff]
-        return jnp.where(m <= p, P[m, cols], P[jnp.minimum(m + 1, M), cols] - sc_p)
+        return jnp.where(m <= p, P_flat[cols * (M + 1) + m], P_flat[cols * (M + 1) + jnp.minimum(m + 1, M)] - sc_p)
 
     def sorted_value(r):  # r-th smallest remaining demo
-        return s[jnp.minimum(r + (r >= p), M - 1), cols]
+        return s_flat[cols * M + jnp.minimum(r + (r >= p), M - 1)]
 
     def count_below(t):  # number of remaining demos < t
-        c = jax.vmap(lambda col, q: jnp.searchsorted(col, q, side="left"), in_axes=(1, 1), out_axes=1)(s, t)
+        c = jax.vmap(lambda col, q: jnp.searchsorted(col, q, side="left"), in_axes=(0, 1), out_axes=1)(s_km, t)
         return c - (p < c)
 
     # bisection for m* = min{m in [1, m_eff] : mean of the m smallest > x}; m_eff + 1 when no such m. The m-th
@@ -198,6 +203,19 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     alpha = jnp.minimum(alpha, alpha_max)
     per_feature = _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix)
     return MinSubdominance(value=per_feature.sum(-1), alpha=alpha, per_feature=per_feature)
+
+
+def _sort_rows(a):
+    """Sorts each row of a float32 ``[K, M]`` ascending (NaN-free input).
+
+    Sorts the order-preserving integer image of the floats (flip the 31 low bits of negatives) and maps back:
+    XLA's CPU sort has a fast path for a single integer operand with a plain ``<`` comparator, ~8x faster
+    than ``jnp.sort``'s NaN-aware float comparator. Exact: the map is a bijection (an involution)."""
+    if a.dtype != jnp.float32:
+        return jnp.sort(a, axis=1)
+    flip = lambda i: i ^ ((i >> 31) & jnp.int32(0x7FFFFFFF))  # noqa: E731
+    keys = jax.lax.sort(flip(jax.lax.bitcast_convert_type(a, jnp.int32)), dimension=1)
+    return jax.lax.bitcast_convert_type(flip(keys), jnp.float32)
 
 
 def _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix):
@@ -331,20 +349,36 @@ def returns_to_go(rewards, lengths):
 
 
 def _check_features(F, G):
-    F = jnp.asarray(F)
-    G = jnp.asarray(G)
+    """Checks shapes and casts to a common float dtype; numpy inputs stay numpy (no device round trip)."""
+    xp = np if isinstance(F, np.ndarray) and isinstance(G, np.ndarray) else jnp
+    F = xp.asarray(F)
+    G = xp.asarray(G)
     if F.ndim != 2 or G.ndim != 2 or F.shape[1] != G.shape[1]:
         raise ValueError(f"features must be F [N, K] and G [M, K] with the same K, got {F.shape} and {G.shape}")
     if F.shape[0] == 0 or G.shape[0] == 0 or F.shape[1] == 0:
         raise ValueError(f"features must be non-empty, got F {F.shape} and G {G.shape}")
     dtype = jnp.result_type(F.dtype, G.dtype, jnp.float32)
-    return F.astype(dtype), G.astype(dtype)
+    F, G = F.astype(dtype), G.astype(dtype)
+    if not isinstance(F, jax.core.Tracer) and not isinstance(G, jax.core.Tracer):
+        finite = np.isfinite(F).all() and np.isfinite(G).all() if xp is np else _all_finite(F, G)
+        if not bool(finite):
+            raise ValueError("features must be finite (no NaN or inf)")
+    return F, G
+
+
+@jax.jit
+def _all_finite(F, G):
+    return jnp.isfinite(F).all() & jnp.isfinite(G).all()
 
 
 def _as_beta(beta, K, dtype):
-    arr = jnp.asarray(beta, dtype)
+    """``[K]`` margins, checked > 0 on the host when concrete (traced margins are not checked)."""
+    if isinstance(beta, jax.core.Tracer):
+        arr = jnp.asarray(beta, dtype)
+    else:
+        arr = np.asarray(beta, dtype)
+        if arr.shape in ((), (K,)) and not np.all(arr > 0):
+            raise ValueError(f"beta (the margin) must be > 0, got {arr}")
     if arr.shape not in ((), (K,)):
         raise ValueError(f"beta must be a scalar or have shape [K]=({K},), got {arr.shape}")
-    if not isinstance(arr, jax.core.Tracer) and not bool(jnp.all(arr > 0)):
-        raise ValueError(f"beta (the margin) must be > 0, got {np.asarray(arr)}")
-    return jnp.broadcast_to(arr, (K,))
+    return jnp.broadcast_to(arr, (K,)) if isinstance(arr, jax.core.Tracer) else np.broadcast_to(arr, (K,))
