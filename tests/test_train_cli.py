@@ -106,3 +106,23 @@ def test_named_dataset_is_recorded_on_first_use_then_reused(tmp_path, cli_env):
     p = _run([*args, "--out", str(tmp_path / "b")], cli_env)
     assert "hopper/medium:" not in p.stdout  # loaded from the cache, not recorded again
     assert json.loads((tmp_path / "b" / "results.json").read_text())["dataset"] == res
+
+
+def test_learned_costs_and_behaviour_cloning_runs(tmp_path, small_dataset_path):
+    """--returns learned trains eq. 3 costs and reports them; --returns none (BC) sets every return token 0."""
+    import dataclasses
+
+    from minsubdt_jax.config import PRESETS, validate
+    from minsubdt_jax.train import prepare, train
+
+    base = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=small_dataset_path, episode_length=60)
+    bc = prepare(validate(dataclasses.replace(base, returns="none")), verbose=False)
+    assert np.all(np.asarray(bc["data"].returns_to_go) == 0) and bc["target_return"] == 0.0
+    res = train(validate(dataclasses.replace(base, returns="learned", cost_dim=3, cost_steps=30,
+                                             out=str(tmp_path / "learned"))), verbose=False)
+    rep = res["dataset"]["learned_costs"]
+    assert res["dataset"]["min_subdominance_features"] == "learned" and len(rep["alpha"]) == 3
+    assert 0 <= rep["heldout_pair_accuracy"] <= 1 and np.isfinite(rep["final_loss"])
+    ev = res["eval"]
+    assert np.isfinite(ev["learned_min_subdominance_mean"]) and 0 <= ev["better_than_mean_demo_share"] <= 1
+    assert len(ev["costs"]) == 2 and len(res["dataset"]["costs_sample"]) == 32

@@ -16,8 +16,11 @@ class Config:
 
     env: str = "walker"  # hopper | walker | halfcheetah
     dataset: str = "medium"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
-    returns: str = "subdom"  # subdom: MinSubDT surrogate returns | true: the dataset's rewards (plain DT)
-    seed: int = 0
+    # subdom: MinSubDT on engineered costs | learned: MinSubDT on costs learned by eq. 3 | true: plain DT on
+    # the dataset's rewards | none: behaviour cloning (the same transformer, every return token 0)
+    returns: str = "subdom"
+    seed: int = 0  # training and evaluation seed
+    dataset_seed: int = 0  # seed of a recorded named dataset (the data stays fixed across training seeds)
     steps: int = 3000  # gradient steps
     preset: str = "cpu"
     out: str | None = None  # run directory; default runs/{env}-{dataset}-{returns}-s{seed}
@@ -38,6 +41,11 @@ class Config:
     target_return: float | None = None  # eval conditioning; default 0 for subdom, max dataset return for true
     beta: float = 1.0  # subdominance margin (eq. 1), same for every feature
     alpha_max: float | None = None  # optional cap on alpha in eq. 2
+    # learned costs (--returns learned, seed eq. 3)
+    cost_dim: int = 2  # K', the number of learned cost features
+    cost_steps: int = 1000  # Adam steps on preference pairs
+    cost_pairs: int = 32  # preference pairs per step
+    cost_label_noise: float = 0.0  # probability of flipping a preference label
     # data and evaluation
     episode_length: int = 1000  # horizon of generated datasets, of evaluation, and of the cost average
     dataset_transitions: int = 100_000  # size of a recorded named dataset (medium-expert: twice)
@@ -58,15 +66,16 @@ PRESETS = {
     # seconds: for tests and a first look
     "smoke": Config(preset="smoke", steps=20, context_len=5, embed_dim=32, n_layers=1, batch_size=8,
                     warmup_steps=10, learning_rate=1e-3, chunk_steps=10, episode_length=100,
-                    dataset_transitions=2000, eval_episodes=2),
+                    dataset_transitions=2000, eval_episodes=2, cost_steps=20),
     # trains and evaluates one dataset in <= 15 min on a 2-core CPU
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
-                  chunk_steps=500, eval_episodes=10),
+                  chunk_steps=500, eval_episodes=10, cost_steps=500),
     # the DT paper's hyper-parameters (~14 h on a 2-core CPU)
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100),
 }
 
-CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "returns": ("subdom", "true"), "preset": tuple(PRESETS)}
+CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "returns": ("subdom", "learned", "true", "none"),
+           "preset": tuple(PRESETS)}
 
 
 def validate(cfg: Config) -> Config:
@@ -75,7 +84,8 @@ def validate(cfg: Config) -> Config:
         if getattr(cfg, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
-                "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps")
+                "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps", "cost_dim",
+                "cost_steps", "cost_pairs")
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
@@ -83,6 +93,8 @@ def validate(cfg: Config) -> Config:
         raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
     if cfg.embed_dim % cfg.n_heads:
         raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
+    if not 0 <= cfg.cost_label_noise < 0.5:
+        raise ValueError(f"--cost-label-noise must be in [0, 0.5), got {cfg.cost_label_noise}")
     if cfg.rtg_scale is not None and not cfg.rtg_scale > 0:
         raise ValueError(f"--rtg-scale must be > 0, got {cfg.rtg_scale}")
     if cfg.alpha_max is not None and not cfg.alpha_max > 0:

@@ -82,16 +82,20 @@ def dt_policy(model: DecisionTransformer):
 @dataclass
 class EvalResult:
     """Per-episode results (numpy): returns ``[n]``, lengths ``[n]``, normalized ``[n]``, costs ``[n, K]``
-    (engineered cost features), min_subdominance ``[n]`` against the demo set's cost features."""
+    (engineered cost features), min_subdominance ``[n]`` against the demo set's engineered features,
+    beats_mean_demo ``[n]`` (every engineered feature below the demos' mean), and, for a run on learned
+    costs, learned_min_subdominance ``[n]`` against the demos' learned features."""
 
     returns: np.ndarray
     lengths: np.ndarray
     normalized: np.ndarray
     costs: np.ndarray
     min_subdominance: np.ndarray
+    beats_mean_demo: np.ndarray
+    learned_min_subdominance: np.ndarray | None = None
 
     def summary(self, cost_names) -> dict:
-        return {
+        out = {
             "episodes": int(len(self.returns)),
             "return_mean": float(self.returns.mean()), "return_std": float(self.returns.std()),
             "normalized_score_mean": float(self.normalized.mean()),
@@ -100,15 +104,24 @@ class EvalResult:
             "costs_mean": {n: float(v) for n, v in zip(cost_names, self.costs.mean(0))},
             "min_subdominance_mean": float(self.min_subdominance.mean()),
             "min_subdominance_std": float(self.min_subdominance.std()),
+            "better_than_mean_demo_share": float(self.beats_mean_demo.mean()),
+            "returns": self.returns.tolist(), "costs": self.costs.tolist(),
         }
+        if self.learned_min_subdominance is not None:
+            out["learned_min_subdominance_mean"] = float(self.learned_min_subdominance.mean())
+            out["learned_min_subdominance_std"] = float(self.learned_min_subdominance.std())
+        return out
 
 
 def evaluate(env: str, model: DecisionTransformer, params: PolicyParams, context_len: int, demo_costs,
-             *, num_episodes: int, horizon: int = 1000, beta=1.0, seed: int = 0) -> EvalResult:
+             *, num_episodes: int, horizon: int = 1000, beta=1.0, seed: int = 0, learned=None,
+             demo_features=None) -> EvalResult:
     """Roll ``model`` out for ``num_episodes`` parallel episodes of at most ``horizon`` steps and score them.
 
     ``demo_costs [M, K]`` are the dataset's engineered cost features; each rollout's min-subdominance
-    (eq. 2, margin ``beta``) is computed against them.
+    (eq. 2, margin ``beta``) is computed against them, and whether it beats their mean on every feature.
+    With ``learned`` (a :class:`minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']`` (the
+    demos' learned features), the rollouts' min-subdominance on the learned features is reported too.
     """
     obs_dim = params.state_mean.shape[0]
     run = make_rollout(env, dt_policy(model), num_episodes, horizon)
@@ -116,6 +129,12 @@ def evaluate(env: str, model: DecisionTransformer, params: PolicyParams, context
                             jax.random.PRNGKey(seed)))
     costs = np.asarray(engineered_costs(env, ro.observations, ro.lengths, horizon))
     returns = np.asarray(ro.rewards).sum(1)
-    ms = min_subdominance(costs, np.asarray(demo_costs), beta)
+    demo_costs = np.asarray(demo_costs)
+    ms = min_subdominance(costs, demo_costs, beta)
+    learned_ms = None
+    if learned is not None:
+        feats = learned.features(ro.observations, ro.lengths)
+        learned_ms = np.asarray(min_subdominance(feats, np.asarray(demo_features), beta).value)
     return EvalResult(returns=returns, lengths=np.asarray(ro.lengths), normalized=normalized_score(env, returns),
-                      costs=costs, min_subdominance=np.asarray(ms.value))
+                      costs=costs, min_subdominance=np.asarray(ms.value),
+                      beats_mean_demo=np.all(costs < demo_costs.mean(0), axis=1), learned_min_subdominance=learned_ms)

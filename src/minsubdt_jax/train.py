@@ -1,11 +1,13 @@
-"""Train a Minimally Subdominant Decision Transformer (or a DT on true returns) and evaluate it in MJX.
+"""Train a Minimally Subdominant Decision Transformer (or a DT, or BC) and evaluate it in MJX.
 
     python -m minsubdt_jax.train --env walker                       # cpu preset, surrogate returns
+    python -m minsubdt_jax.train --env walker --returns learned     # costs learned from preferences (eq. 3)
     python -m minsubdt_jax.train --env hopper --returns true        # plain DT on the true rewards
+    python -m minsubdt_jax.train --env hopper --returns none        # BC: the same transformer, return tokens 0
     python -m minsubdt_jax.train --env hopper --preset smoke --out /tmp/run
     python -m minsubdt_jax.train --env hopper --out /tmp/run --resume   # continue after an interruption
 
-Pipeline: dataset -> engineered cost features -> min-subdominance (eq. 2, leave-one-out) -> surrogate
+Pipeline: dataset -> engineered (or learned) cost features -> min-subdominance (eq. 2, leave-one-out) -> surrogate
 returns-to-go -> DT training (pure jitted step, ``lax.scan`` chunks, orbax checkpoint after each chunk)
 -> batched MJX evaluation. The run directory holds ``config.json``, ``metrics.jsonl``, ``results.json``,
 ``learning_curve.png`` and ``checkpoints/``.
@@ -33,6 +35,7 @@ from .data import resolve_dataset, sample_batch, sampler_data
 from .data.sampler import Batch, SamplerData
 from .envs import REFERENCE_SOURCE, normalized_score
 from .evaluate import PolicyParams, evaluate
+from .learned_costs import LearnedCostConfig, train_learned_costs
 from .model import DecisionTransformer
 from .rundir import check_run_dir, exit_code, progress, truncate_metrics
 from .subdominance import min_subdominance, returns_to_go, surrogate_rewards
@@ -57,8 +60,8 @@ def make_model(cfg: Config, act_dim: int, max_timestep: int) -> DecisionTransfor
 def make_optimizer(cfg: Config) -> optax.GradientTransformation:
     """AdamW with the DT paper's linear warm-up to a constant rate, after global-norm clipping."""
     schedule = lambda step: cfg.learning_rate * jnp.minimum((step + 1) / cfg.warmup_steps, 1.0)  # noqa: E731
-    return optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
-                       optax.adamw(schedule, weight_decay=cfg.weight_decay))
+    return optax.flatten(optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
+                                     optax.adamw(schedule, weight_decay=cfg.weight_decay)))
 
 
 def init_state(model: DecisionTransformer, tx, cfg: Config, obs_dim: int) -> TrainState:
@@ -104,24 +107,36 @@ def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int):
 def prepare(cfg: Config, verbose: bool = True) -> dict:
     """Dataset -> cost features -> min-subdominance -> (surrogate) returns-to-go -> sampler arrays."""
     dataset, path = resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions,
-                                    horizon=cfg.episode_length, seed=cfg.seed, verbose=verbose)
+                                    horizon=cfg.episode_length, seed=cfg.dataset_seed, verbose=verbose)
     if dataset.max_len > cfg.episode_length:
         raise ValueError(f"the dataset has episodes of {dataset.max_len} steps, longer than --episode-length "
                          f"{cfg.episode_length}")
     costs = np.asarray(engineered_costs(cfg.env, dataset.observations, dataset.lengths, cfg.episode_length))
-    ms = min_subdominance(costs, costs, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True)
+    mean, std = dataset.state_stats()
+    learned = None
+    if cfg.returns == "learned":
+        lc_cfg = LearnedCostConfig(cost_dim=cfg.cost_dim, steps=cfg.cost_steps, pairs_per_step=cfg.cost_pairs,
+                                   label_noise=cfg.cost_label_noise, seed=cfg.seed)
+        learned = train_learned_costs(dataset.observations, dataset.lengths, dataset.returns, lc_cfg, beta=cfg.beta,
+                                      horizon=cfg.episode_length, state_mean=mean, state_std=std)
+        features = learned.features(dataset.observations, dataset.lengths)
+    else:
+        features = costs
+    ms = min_subdominance(features, features, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True)
     ms_value = np.asarray(ms.value)
     rho = spearman(-ms_value, dataset.returns)
-    if cfg.returns == "subdom":
+    if cfg.returns in ("subdom", "learned"):
         rewards = surrogate_rewards(ms_value, dataset.lengths, dataset.max_len)
         rtg_scale = cfg.rtg_scale or 1.0
         target = 0.0 if cfg.target_return is None else cfg.target_return
-    else:
+    elif cfg.returns == "true":
         rewards = dataset.rewards
         rtg_scale = cfg.rtg_scale or 1000.0
         target = float(dataset.returns.max()) if cfg.target_return is None else cfg.target_return
+    else:  # "none": behaviour cloning, every return token 0
+        rewards = np.zeros_like(dataset.rewards)
+        rtg_scale, target = 1.0, 0.0
     rtg = np.asarray(returns_to_go(rewards, dataset.lengths)) / rtg_scale
-    mean, std = dataset.state_stats()
     summary = {
         "path": path, "episodes": dataset.num_trajectories, "transitions": dataset.num_transitions,
         "return_mean": float(dataset.returns.mean()), "return_std": float(dataset.returns.std()),
@@ -129,14 +144,23 @@ def prepare(cfg: Config, verbose: bool = True) -> dict:
         "costs_mean": dict(zip(engineered_spec(cfg.env).names, map(float, costs.mean(0)))),
         "min_subdominance_mean": float(ms_value.mean()), "min_subdominance_std": float(ms_value.std()),
         "spearman_neg_min_subdominance_vs_return": rho,
+        "min_subdominance_features": "learned" if learned else "engineered",
+        # up to 300 demos' engineered cost features, for the demos-vs-rollouts scatter of experiments/table1.py
+        "costs_sample": costs[np.sort(np.random.default_rng(0).permutation(len(costs))[:300])].tolist(),
     }
+    if learned:
+        summary["learned_costs"] = learned.report
     if verbose:
         print(f"dataset {path}: {summary['episodes']} episodes, {summary['transitions']} transitions, return "
               f"{summary['return_mean']:.1f} ± {summary['return_std']:.1f}")
         print(f"min-subdominance {summary['min_subdominance_mean']:.3f} ± {summary['min_subdominance_std']:.3f}; "
               f"Spearman(-min-subdominance, true return) = {rho:.3f}", flush=True)
-    return dict(dataset=dataset, costs=costs, data=sampler_data(dataset, rtg, mean, std), state_mean=mean,
-                state_std=std, rtg_scale=rtg_scale, target_return=target, summary=summary)
+    if verbose and learned:
+        r = learned.report
+        print(f"learned costs (K'={cfg.cost_dim}): held-out pair accuracy {r['heldout_pair_accuracy']:.3f}, "
+              f"train {r['train_pair_accuracy']:.3f}", flush=True)
+    return dict(dataset=dataset, costs=costs, features=features, learned=learned,
+                data=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale, target_return=target, summary=summary)
 
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
@@ -191,7 +215,8 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
                               target_return=jnp.float32(prep["target_return"]), rtg_scale=jnp.float32(prep["rtg_scale"]),
                               subtract_rewards=jnp.float32(cfg.returns == "true"))
         ev = evaluate(cfg.env, model, params, cfg.context_len, prep["costs"], num_episodes=cfg.eval_episodes,
-                      horizon=cfg.episode_length, beta=cfg.beta, seed=cfg.seed + 10_000)
+                      horizon=cfg.episode_length, beta=cfg.beta, seed=cfg.seed + 10_000, learned=prep["learned"],
+                      demo_features=prep["features"])
         results["eval"] = ev.summary(engineered_spec(cfg.env).names)
         results["eval"]["target_return"] = prep["target_return"]
         results["eval"]["seconds"] = time.time() - te

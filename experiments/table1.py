@@ -1,0 +1,295 @@
+"""The seed's Table 1 on our MJX datasets: MinSubDT (engineered / learned costs), DT (true returns) and BC.
+
+    python experiments/table1.py                      # run what is missing (cpu preset, 3 seeds), then aggregate
+    python experiments/table1.py run --seeds 0 --envs hopper --datasets medium
+    python experiments/table1.py aggregate            # tables and plots from the results present
+
+Every run (env x dataset x method x seed) trains with ``minsubdt_jax.train.train`` in
+``runs/table1/{preset}/{name}`` (checkpoints; resumable) and writes its compact result to
+``experiments/results/table1/{preset}/{name}.json``; a run whose result exists is skipped, so an interrupted
+sweep resumes where it stopped (seed 0 of every cell first, then seed 1, then seed 2). The datasets are the
+named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across training seeds.
+``aggregate`` writes ``experiments/results/table1.md`` / ``.json`` (normalised score mean ± std over the
+seeds present, with their count; averages with and without medium-replay; the better-than-demonstrated
+report) and ``experiments/results/table1_costs_{env}.png`` (demos' vs rollouts' engineered cost features).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import glob
+import json
+import os
+import sys
+import time
+import traceback
+
+import numpy as np
+
+ENVS = ("halfcheetah", "hopper", "walker")
+DATASETS = ("medium-expert", "medium", "medium-replay")
+METHODS = ("subdom", "learned", "true", "none")
+METHOD_NAMES = {"subdom": "MinSubDT (engg. costs)", "learned": "MinSubDT (learned costs)", "true": "DT",
+                "none": "BC"}
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+
+# Seed Table 1 (gym/D4RL v2 datasets, normalised by D4RL's references): not comparable one to one with ours.
+PUBLISHED = {
+    ("medium-expert", "halfcheetah"): {"subdom": 89.5, "learned": 86.8, "true": 87.0, "none": 59.9},
+    ("medium-expert", "hopper"): {"subdom": 110.7, "learned": 110.8, "true": 107.6, "none": 79.6},
+    ("medium-expert", "walker"): {"subdom": 108.1, "learned": 108.5, "true": 108.1, "none": 36.6},
+    ("medium", "halfcheetah"): {"subdom": 41.3, "learned": 40.9, "true": 42.6, "none": 43.1},
+    ("medium", "hopper"): {"subdom": 56.8, "learned": 55.8, "true": 67.6, "none": 63.9},
+    ("medium", "walker"): {"subdom": 70.4, "learned": 74.9, "true": 74.0, "none": 77.3},
+    ("medium-replay", "halfcheetah"): {"subdom": 32.3, "learned": 31.8, "true": 36.6, "none": 4.3},
+    ("medium-replay", "hopper"): {"subdom": 40.5, "learned": 37.1, "true": 82.7, "none": 27.6},
+    ("medium-replay", "walker"): {"subdom": 37.1, "learned": 36.0, "true": 66.6, "none": 36.9},
+}
+
+
+def run_name(env, dataset, method, seed) -> str:
+    return f"{env}-{dataset}-{method}-s{seed}"
+
+
+def result_dir(preset: str, results_root: str = RESULTS) -> str:
+    return os.path.join(results_root, "table1", preset)
+
+
+def compact(results: dict) -> dict:
+    """The part of ``train``'s results.json that the table needs, floats rounded (small files to commit)."""
+    def rnd(x):
+        if isinstance(x, float):
+            return round(x, 5)
+        if isinstance(x, list):
+            return [rnd(v) for v in x]
+        if isinstance(x, dict):
+            return {k: rnd(v) for k, v in x.items()}
+        return x
+
+    return rnd({k: results[k] for k in ("config", "dataset", "train", "eval", "references") if k in results})
+
+
+def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds=(0, 1, 2), runs_root="runs/table1",
+              results_root=RESULTS, train_fn=None, log=print) -> dict:
+    """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (names)."""
+    if train_fn is None:
+        from minsubdt_jax.train import train as train_fn
+    from minsubdt_jax.config import PRESETS
+
+    out_dir = result_dir(preset, results_root)
+    os.makedirs(out_dir, exist_ok=True)
+    todo = [(e, d, m, s) for s in seeds for d in datasets for e in envs for m in methods]
+    status = {"done": [], "skipped": [], "failed": []}
+    for i, (env, ds, method, seed) in enumerate(todo):
+        name = run_name(env, ds, method, seed)
+        path = os.path.join(out_dir, name + ".json")
+        if os.path.exists(path):
+            status["skipped"].append(name)
+            continue
+        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, returns=method, seed=seed,
+                                  out=os.path.join(runs_root, preset, name))
+        log(f"[{i + 1}/{len(todo)}] {name} ...")
+        t0 = time.time()
+        try:
+            res = train_fn(cfg, resume=os.path.exists(os.path.join(cfg.out, "config.json")), verbose=False)
+        except Exception:  # one failed cell must not stop the sweep; it is reported and retried next time
+            log(traceback.format_exc())
+            status["failed"].append(name)
+            continue
+        tmp = path + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(compact(res), f)
+        os.replace(tmp, path)  # a result file is complete or absent
+        ev = res.get("eval", {})
+        log(f"[{i + 1}/{len(todo)}] {name}: normalised {ev.get('normalized_score_mean', float('nan')):.1f} "
+            f"({time.time() - t0:.0f} s)")
+        status["done"].append(name)
+    return status
+
+
+def load_results(preset="cpu", results_root=RESULTS) -> list[dict]:
+    rows = []
+    for path in sorted(glob.glob(os.path.join(result_dir(preset, results_root), "*.json"))):
+        with open(path) as f:
+            r = json.load(f)
+        c = r["config"]
+        rows.append({"env": c["env"], "dataset": c["dataset"], "method": c["returns"], "seed": c["seed"], "r": r})
+    return rows
+
+
+def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) -> dict:
+    """Writes table1.md / table1.json (and the cost plots) from the results present; returns the table."""
+    rows = load_results(preset, results_root)
+    cells = {}
+    for row in rows:
+        ev = row["r"].get("eval")
+        if ev is None:
+            continue
+        c = cells.setdefault((row["dataset"], row["env"], row["method"]), {"scores": [], "seeds": [], "btd": [],
+                                                                          "ms": [], "ms_demo": []})
+        c["scores"].append(ev["normalized_score_mean"])
+        c["seeds"].append(row["seed"])
+        c["btd"].append(ev["better_than_mean_demo_share"])
+        c["ms"].append(ev["min_subdominance_mean"])
+        c["ms_demo"].append(row["r"]["dataset"]["min_subdominance_mean"] if row["method"] == "subdom" else None)
+    table = {}
+    for (ds, env, m), c in cells.items():
+        s = np.asarray(c["scores"])
+        table.setdefault(f"{ds}/{env}", {})[m] = {
+            "mean": float(s.mean()), "std": float(s.std()), "n_seeds": len(s), "seeds": sorted(c["seeds"]),
+            "better_than_mean_demo_share": float(np.mean(c["btd"])), "rollout_min_subdominance": float(np.mean(c["ms"])),
+        }
+    averages = {}
+    for label, keep in (("all", DATASETS), ("without medium-replay", ("medium-expert", "medium"))):
+        for m in METHODS:
+            vals = [table[f"{d}/{e}"][m]["mean"] for d in keep for e in ENVS if m in table.get(f"{d}/{e}", {})]
+            averages.setdefault(label, {})[m] = {"mean": float(np.mean(vals)) if vals else None, "cells": len(vals),
+                                                 "of": len(keep) * len(ENVS)}
+    costs = {}
+    for row in rows:  # rank agreement of -min-subdominance with the true return, per cost representation
+        key = f"{row['dataset']}/{row['env']}"
+        ds = row["r"]["dataset"]
+        if row["method"] == "subdom":
+            costs.setdefault(key, {})["engineered_spearman"] = ds["spearman_neg_min_subdominance_vs_return"]
+        elif row["method"] == "learned":
+            lc = costs.setdefault(key, {}).setdefault("learned", [])
+            lc.append({"seed": row["seed"], "spearman": ds["spearman_neg_min_subdominance_vs_return"],
+                       "heldout_pair_accuracy": ds["learned_costs"]["heldout_pair_accuracy"]})
+    demo = {f"{d}/{e}": next((r["r"]["dataset"]["normalized_score_mean"] for r in rows
+                              if r["dataset"] == d and r["env"] == e), None) for d in DATASETS for e in ENVS}
+    out = {"preset": preset, "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
+           "cost_rank_agreement": costs,
+           "published_seed_table1_gym_d4rl": {f"{d}/{e}": v for (d, e), v in PUBLISHED.items()}}
+    os.makedirs(out_root, exist_ok=True)
+    with open(os.path.join(out_root, "table1.json"), "w") as f:
+        json.dump(out, f, indent=2)
+    with open(os.path.join(out_root, "table1.md"), "w") as f:
+        f.write(markdown(out))
+    if plots and rows:
+        for env in ENVS:
+            plot_costs(rows, env, os.path.join(out_root, f"table1_costs_{env}.png"))
+    return out
+
+
+def _cell(entry) -> str:
+    if entry is None:
+        return "–"
+    return f"{entry['mean']:.1f} ± {entry['std']:.1f} ({entry['n_seeds']})"
+
+
+def markdown(out: dict) -> str:
+    cols = [METHOD_NAMES[m] for m in METHODS]
+    lines = [f"# Table 1 on our MJX datasets (preset `{out['preset']}`)", "",
+             "Normalised score (100 = committed SAC expert, 0 = uniform random, in MJX), mean ± std over the "
+             "training seeds present (their count in brackets), 10 evaluation episodes per seed at the cpu "
+             "preset. '–' = not run yet. Regenerate: `python experiments/table1.py` (runs what is missing, "
+             "then aggregates).", "",
+             "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
+    for d in DATASETS:
+        for e in ENVS:
+            row = out["table"].get(f"{d}/{e}", {})
+            own = out["dataset_score"].get(f"{d}/{e}")
+            lines.append(f"| {d} | {e} | {'–' if own is None else f'{own:.1f}'} | "
+                         + " | ".join(_cell(row.get(m)) for m in METHODS) + " |")
+    for label, av in out["averages"].items():
+        lines.append(f"| **average ({label})** | | | " + " | ".join(
+            "–" if av[m]["mean"] is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
+            for m in METHODS) + " |")
+    lines += ["", "## Better than demonstrated?", "",
+              "Share of evaluation rollouts whose engineered cost features are all below the dataset's mean demo, "
+              "and the rollouts' min-subdominance (eq. 2, engineered features) against the demos (lower is "
+              "better); mean over seeds.", "",
+              "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
+    for d in DATASETS:
+        for e in ENVS:
+            row = out["table"].get(f"{d}/{e}", {})
+            lines.append(f"| {d} | {e} | " + " | ".join(
+                "–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / {row[m]['rollout_min_subdominance']:.2f}"
+                for m in METHODS) + " |")
+    lines += ["", "## Cost representations: do they rank the demos like the true return?", "",
+              "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
+              "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
+              "and the learned costs' held-out preference accuracy (pairs among the 20 % of trajectories "
+              "held out of training).", "",
+              "| dataset | env | engineered: Spearman | learned: Spearman | learned: held-out pair accuracy |",
+              "|---|---|---|---|---|"]
+    for d in DATASETS:
+        for e in ENVS:
+            c = out["cost_rank_agreement"].get(f"{d}/{e}", {})
+            eng = c.get("engineered_spearman")
+            lr = c.get("learned", [])
+            sp = f"{np.mean([x['spearman'] for x in lr]):.3f} ({len(lr)})" if lr else "–"
+            acc = f"{np.mean([x['heldout_pair_accuracy'] for x in lr]):.3f}" if lr else "–"
+            lines.append(f"| {d} | {e} | {'–' if eng is None else f'{eng:.3f}'} | {sp} | {acc} |")
+    lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
+              "Not comparable one to one with the table above: other physics, other behaviour policies, other "
+              "references, 100k training steps. For orientation only.", "",
+              "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
+    for (d, e), v in PUBLISHED.items():
+        lines.append(f"| {d} | {e} | " + " | ".join(f"{v[m]:.1f}" for m in METHODS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_costs(rows, env, png):
+    """Per dataset: the demos' engineered cost features (a sample) against every method's rollouts."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r["env"] == env and r["r"].get("eval")]
+    if not rows:
+        return
+    fig, axes = plt.subplots(1, len(DATASETS), figsize=(4.2 * len(DATASETS), 3.6), dpi=100, squeeze=False)
+    for ax, d in zip(axes[0], DATASETS):
+        rs = [r for r in rows if r["dataset"] == d]
+        if not rs:
+            ax.set_title(f"{env} {d}: no runs yet")
+            continue
+        demo = np.asarray(rs[0]["r"]["dataset"]["costs_sample"])
+        groups = [("demos", demo)] + [(METHOD_NAMES[m], np.concatenate([np.asarray(r["r"]["eval"]["costs"])
+                                                                       for r in rs if r["method"] == m]))
+                                      for m in METHODS if any(r["method"] == m for r in rs)]
+        for gi, (label, pts) in enumerate(groups):
+            if pts.shape[1] >= 2:
+                ax.scatter(pts[:, 0], pts[:, 1], s=8 if gi == 0 else 18, alpha=0.35 if gi == 0 else 0.8, label=label)
+            else:
+                ax.scatter(pts[:, 0], gi + 0.15 * np.random.default_rng(gi).normal(size=len(pts)), s=10, label=label)
+        names = list(rs[0]["r"]["dataset"]["costs_mean"])
+        ax.set(title=f"{env} {d}", xlabel=f"{names[0]} cost")
+        ax.set_ylabel(f"{names[1]} cost" if len(names) > 1 else "group")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("action", nargs="?", default="all", choices=["all", "run", "aggregate"])
+    p.add_argument("--preset", default="cpu")
+    p.add_argument("--envs", nargs="+", default=list(ENVS), choices=ENVS)
+    p.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    p.add_argument("--runs-root", default="runs/table1", help="training run directories (checkpoints)")
+    a = p.parse_args(argv)
+    from minsubdt_jax.config import PRESETS
+
+    if a.preset not in PRESETS:
+        p.error(f"--preset must be one of {list(PRESETS)}")
+    failed = []
+    if a.action in ("all", "run"):
+        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root)
+        print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
+        failed = st["failed"]
+    if a.action in ("all", "aggregate"):
+        out = aggregate(a.preset)
+        print(markdown(out))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
