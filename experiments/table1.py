@@ -186,12 +186,15 @@ def markdown(out: dict) -> str:
              "preset. '–' = not run yet. Regenerate: `python experiments/table1.py` (runs what is missing, "
              "then aggregates).", "",
              "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
-    for d in DATASETS:
-        for e in ENVS:
-            row = out["table"].get(f"{d}/{e}", {})
-            own = out["dataset_score"].get(f"{d}/{e}")
-            lines.append(f"| {d} | {e} | {'–' if own is None else f'{own:.1f}'} | "
-                         + " | ".join(_cell(row.get(m)) for m in METHODS) + " |")
+
+    def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"
+        return [f"| {d} | {e} | {fmt(d, e, out['table'].get(f'{d}/{e}', {}))} |" for d in DATASETS for e in ENVS]
+
+    def own(d, e):
+        v = out["dataset_score"].get(f"{d}/{e}")
+        return "–" if v is None else f"{v:.1f}"
+
+    lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in METHODS))
     for label, av in out["averages"].items():
         lines.append(f"| **average ({label})** | | | " + " | ".join(
             "–" if av[m]["mean"] is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
@@ -201,12 +204,9 @@ def markdown(out: dict) -> str:
               "and the rollouts' min-subdominance (eq. 2, engineered features) against the demos (lower is "
               "better); mean over seeds.", "",
               "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
-    for d in DATASETS:
-        for e in ENVS:
-            row = out["table"].get(f"{d}/{e}", {})
-            lines.append(f"| {d} | {e} | " + " | ".join(
-                "–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / {row[m]['rollout_min_subdominance']:.2f}"
-                for m in METHODS) + " |")
+    lines += cells(lambda d, e, row: " | ".join(
+        "–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / {row[m]['rollout_min_subdominance']:.2f}"
+        for m in METHODS))
     lines += ["", "## Cost representations: do they rank the demos like the true return?", "",
               "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
               "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
@@ -214,14 +214,15 @@ def markdown(out: dict) -> str:
               "held out of training).", "",
               "| dataset | env | engineered: Spearman | learned: Spearman | learned: held-out pair accuracy |",
               "|---|---|---|---|---|"]
-    for d in DATASETS:
-        for e in ENVS:
-            c = out["cost_rank_agreement"].get(f"{d}/{e}", {})
-            eng = c.get("engineered_spearman")
-            lr = c.get("learned", [])
-            sp = f"{np.mean([x['spearman'] for x in lr]):.3f} ({len(lr)})" if lr else "–"
-            acc = f"{np.mean([x['heldout_pair_accuracy'] for x in lr]):.3f}" if lr else "–"
-            lines.append(f"| {d} | {e} | {'–' if eng is None else f'{eng:.3f}'} | {sp} | {acc} |")
+
+    def agreement(d, e, _):
+        c = out["cost_rank_agreement"].get(f"{d}/{e}", {})
+        eng, lr = c.get("engineered_spearman"), c.get("learned", [])
+        sp = f"{np.mean([x['spearman'] for x in lr]):.3f} ({len(lr)})" if lr else "–"
+        acc = f"{np.mean([x['heldout_pair_accuracy'] for x in lr]):.3f}" if lr else "–"
+        return f"{'–' if eng is None else f'{eng:.3f}'} | {sp} | {acc}"
+
+    lines += cells(agreement)
     lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
               "Not comparable one to one with the table above: other physics, other behaviour policies, other "
               "references, 100k training steps. For orientation only.", "",
