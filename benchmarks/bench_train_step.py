@@ -4,7 +4,9 @@
 
 FLOPs per step are XLA's own count (``compiled.cost_analysis()['flops']``) for one jitted train step
 (sampling, forward, backward, AdamW update); the step time is the median over ``--steps``-step ``lax.scan``
-chunks, exactly as training runs them. The matmul reference is a jitted f32 [2048, 2048] @ [2048, 2048].
+chunks, exactly as training runs them (``--devices N``: data parallel over N local devices, e.g. with
+``XLA_FLAGS=--xla_force_host_platform_device_count=2`` on a CPU). The matmul reference is a jitted f32
+[2048, 2048] @ [2048, 2048].
 
 What bounds the step: ``dots-only`` replays every ``dot_general`` of the step (read from its lowered
 StableHLO: the same shapes and dimension numbers, fed by the loop carry so nothing is hoisted) in a scan of the
@@ -27,6 +29,7 @@ import numpy as np
 
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.data import Trajectories, sampler_data
+from minsubdt_jax.parallel import make_mesh, replicate
 from minsubdt_jax.train import init_state, make_model, make_optimizer, make_train_chunk, make_train_step
 
 
@@ -92,7 +95,7 @@ def timeit(fn, div=1):
     return (time.perf_counter() - t0) / div
 
 
-def bench(preset: str, steps: int, repeats: int, matmul, dropout: float | None = None) -> dict:
+def bench(preset: str, steps: int, repeats: int, matmul, dropout: float | None = None, devices: int = 1) -> dict:
     """Time the preset's train chunk and its dots-only replay, interleaved with the matmul reference so that
     all three see the same machine state; ratios are medians of per-repeat ratios."""
     cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps)
@@ -110,7 +113,9 @@ def bench(preset: str, steps: int, repeats: int, matmul, dropout: float | None =
     flops = lowered.compile().cost_analysis()["flops"]
     dots = step_dots(lowered.as_text())
     dots_run, dot_flops = make_dots_only(dots)
-    chunk = make_train_chunk(model, tx, cfg, steps)
+    mesh = make_mesh(devices, cfg.batch_size)
+    state, data = replicate((state, data), mesh)
+    chunk = make_train_chunk(model, tx, cfg, steps, mesh)
     t0 = time.perf_counter()
     state, _ = chunk(state, data)
     jax.block_until_ready(state)
@@ -130,7 +135,7 @@ def bench(preset: str, steps: int, repeats: int, matmul, dropout: float | None =
     ref, step_s, dots_s = (statistics.median(c) for c in zip(*rows))
     med = lambda f: statistics.median(f(*r) for r in rows)  # noqa: E731
     return {"preset": preset, "context_len": cfg.context_len, "embed_dim": cfg.embed_dim, "n_layers": cfg.n_layers,
-            "batch_size": cfg.batch_size, "dropout": cfg.dropout, "ms_per_step": 1e3 * step_s,
+            "batch_size": cfg.batch_size, "dropout": cfg.dropout, "devices": mesh.size, "ms_per_step": 1e3 * step_s,
             "gflop_per_step": flops / 1e9,
             "gflops": flops / step_s / 1e9, "matmul_gflops": ref,
             "fraction_of_matmul": med(lambda r, s, d: flops / s / 1e9 / r),
@@ -147,6 +152,7 @@ def main():
     p.add_argument("--steps", type=int, default=20, help="steps per timed lax.scan chunk")
     p.add_argument("--repeats", type=int, default=7)
     p.add_argument("--dropout", type=float, default=None, help="override the presets' dropout (0: its cost)")
+    p.add_argument("--devices", type=int, default=1, help="data parallel over this many local devices (0: all)")
     p.add_argument("--json", default=None)
     a = p.parse_args()
     matmul = make_matmul()
@@ -156,7 +162,7 @@ def main():
           f"{'matmul':>7} {'of matmul':>9} | {'dots-only ms':>12} {'GFLOP/s':>8} {'of matmul':>9} {'of step':>7}")
     rows = []
     for preset in a.presets:
-        r = bench(preset, a.steps, a.repeats, matmul, a.dropout)
+        r = bench(preset, a.steps, a.repeats, matmul, a.dropout, a.devices)
         rows.append(r)
         print(f"{preset:>7} {r['context_len']:>3} {r['embed_dim']:>4} {r['n_layers']:>2} {r['batch_size']:>4} | "
               f"{r['ms_per_step']:>8.1f} {r['gflop_per_step']:>10.2f} {r['gflops']:>8.1f} {r['matmul_gflops']:>7.0f} "

@@ -51,6 +51,7 @@ class Config:
     dataset_transitions: int = 100_000  # size of a recorded named dataset (medium-expert: twice)
     eval_episodes: int = 10  # 0 skips the final evaluation
     chunk_steps: int = 500  # steps per jitted lax.scan chunk; a checkpoint and a log line after each
+    devices: int = 0  # data parallel over this many local devices (0: all); --batch-size must divide evenly
 
     def run_dir(self) -> str:
         if self.out:
@@ -89,6 +90,8 @@ def validate(cfg: Config) -> Config:
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if cfg.devices < 0:
+        raise ValueError(f"--devices must be >= 0 (0: all local devices), got {cfg.devices}")
     if cfg.eval_episodes < 0 or not 0 <= cfg.dropout < 1 or cfg.weight_decay < 0 or cfg.grad_clip <= 0:
         raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
     if cfg.embed_dim % cfg.n_heads:

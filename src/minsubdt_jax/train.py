@@ -37,11 +37,12 @@ from .envs import REFERENCE_SOURCE, normalized_score
 from .evaluate import PolicyParams, evaluate
 from .learned_costs import LearnedCostConfig, train_learned_costs
 from .model import DecisionTransformer
+from .parallel import make_mesh, replicate, shard_batch
 from .rundir import check_run_dir, exit_code, progress, truncate_metrics
 from .subdominance import min_subdominance, returns_to_go, surrogate_rewards
 
 # Fields that may differ between a run and its resumption.
-RESUMABLE_CHANGES = ("steps", "eval_episodes", "out", "preset")
+RESUMABLE_CHANGES = ("steps", "eval_episodes", "out", "preset", "devices")
 
 
 @struct.dataclass
@@ -80,12 +81,15 @@ def action_loss(model: DecisionTransformer, params, batch: Batch, rng) -> jax.Ar
     return jnp.sum(err * batch.mask) / jnp.maximum(jnp.sum(batch.mask), 1)
 
 
-def make_train_step(model: DecisionTransformer, tx, cfg: Config):
-    """Pure ``step(state, data) -> (state, loss)``: sample a batch, forward, backward, clipped AdamW update."""
+def make_train_step(model: DecisionTransformer, tx, cfg: Config, mesh=None):
+    """Pure ``step(state, data) -> (state, loss)``: sample a batch, forward, backward, clipped AdamW update.
+
+    With a ``mesh`` (:func:`minsubdt_jax.parallel.make_mesh`) the batch is split over its devices (data
+    parallel); the step computes the same thing on any number of devices."""
 
     def step(state: TrainState, data: SamplerData):
         rng, k_batch, k_drop = jax.random.split(state.rng, 3)
-        batch = sample_batch(k_batch, data, cfg.batch_size, cfg.context_len)
+        batch = shard_batch(sample_batch(k_batch, data, cfg.batch_size, cfg.context_len), mesh)
         loss, grads = jax.value_and_grad(lambda p: action_loss(model, p, batch, k_drop))(state.params)
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
@@ -94,9 +98,10 @@ def make_train_step(model: DecisionTransformer, tx, cfg: Config):
     return step
 
 
-def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int):
-    """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``."""
-    step = make_train_step(model, tx, cfg)
+def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int, mesh=None):
+    """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``
+    (data parallel over ``mesh`` when given: pass ``state`` and ``data`` replicated on it)."""
+    step = make_train_step(model, tx, cfg, mesh)
 
     def chunk(state, data):
         return jax.lax.scan(lambda s, _: step(s, data), state, None, length=n_steps)
@@ -169,6 +174,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
     out = cfg.run_dir()
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
+    mesh = make_mesh(cfg.devices, cfg.batch_size)  # checked before anything is written
     prep = prepare(cfg, verbose)  # before anything is written: bad data changes nothing
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "config.json"), "w") as f:
@@ -183,6 +189,9 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
         if verbose:
             print(f"resumed from step {int(state.step)}", flush=True)
     start = int(state.step)
+    state, data = replicate((state, prep["data"]), mesh)
+    if verbose and mesh.size > 1:
+        print(f"data parallel over {mesh.size} devices: {cfg.batch_size // mesh.size} sequences each", flush=True)
     metrics_path = os.path.join(out, "metrics.jsonl")
     truncate_metrics(metrics_path, start)
 
@@ -192,9 +201,9 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
     while int(state.step) < cfg.steps:
         n = min(cfg.chunk_steps, cfg.steps - int(state.step))
         if n not in chunks:
-            chunks[n] = make_train_chunk(model, tx, cfg, n)
+            chunks[n] = make_train_chunk(model, tx, cfg, n, mesh)
         tc = time.time()
-        state, losses = chunks[n](state, prep["data"])
+        state, losses = chunks[n](state, data)
         loss = float(jnp.mean(losses))
         step = int(state.step)
         with open(metrics_path, "a") as f:
