@@ -68,8 +68,13 @@ def engineered_costs(env: str, observations, lengths, horizon: int = 1000):
         raise ValueError(f"a trajectory is longer ({int(np.max(np.asarray(lengths)))}) than the horizon {horizon}")
     v = obs[..., list(cs.obs_index)]  # [N, T, K]
     lo, hi = jnp.asarray(cs.lo), jnp.asarray(cs.hi)
-    per_step = (hi - jnp.clip(v, lo, hi)) / (hi - lo)
-    valid = (jnp.arange(obs.shape[1])[None, :] < lengths[:, None])[..., None]
+    return horizon_average((hi - jnp.clip(v, lo, hi)) / (hi - lo), lengths, horizon)
+
+
+def horizon_average(per_step, lengths, horizon: int):
+    """``f(xi) = 1/H (sum_{t < L} c(t) + (H - L))``: per-step costs ``[N, T, K]`` in [0, 1] averaged over the
+    horizon, every step not lived charged the worst cost 1 (module docstring). Returns ``[N, K]``."""
+    valid = (jnp.arange(per_step.shape[1])[None, :] < lengths[:, None])[..., None]
     lived = jnp.sum(jnp.where(valid, per_step, 0.0), axis=1)
     return (lived + (horizon - lengths)[:, None].astype(per_step.dtype)) / horizon
 

@@ -16,6 +16,7 @@ margin and ``alpha`` one global, learned, positive sensitivity per feature (``al
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,7 +27,7 @@ import numpy as np
 import optax
 from flax import struct
 
-from .costs import spearman
+from .costs import horizon_average, spearman
 from .subdominance import subdominance
 
 
@@ -81,9 +82,7 @@ def trajectory_features(net: CostNet, params: CostParams, observations, lengths,
       ``[N, K']`` features in ``[0, 1]``, lower is better.
     """
     per_step = net.apply(params.net, (observations - params.state_mean) / params.state_std)  # [N, T, K']
-    valid = (jnp.arange(observations.shape[1])[None, :] < lengths[:, None])[..., None]
-    lived = jnp.sum(jnp.where(valid, per_step, 0.0), axis=1)
-    return (lived + (horizon - lengths)[:, None].astype(per_step.dtype)) / horizon
+    return horizon_average(per_step, lengths, horizon)
 
 
 def preference_loss(f_worse, f_better, alpha, beta):
@@ -130,7 +129,9 @@ class LearnedCosts:
                                                                  jnp.asarray(lengths)))
 
 
+@functools.lru_cache(maxsize=None)
 def _features_jit(net, horizon):
+    """One compiled :func:`trajectory_features` per (net, horizon), reused by every ``features`` call."""
     return jax.jit(lambda p, o, l: trajectory_features(net, p, o, l, horizon))
 
 
@@ -226,6 +227,6 @@ def pair_accuracy(features, returns, idx, alpha, beta) -> float:
     if len(i) == 0:
         return float("nan")
     w, b = np.where(r[i] < r[j], i, j), np.where(r[i] < r[j], j, i)
-    c_wb = np.maximum(alpha * (f[w] - f[b]) + beta, 0).sum(1)
-    c_bw = np.maximum(alpha * (f[b] - f[w]) + beta, 0).sum(1)
+    c_wb = np.asarray(subdominance(f[w], f[b], alpha, beta))
+    c_bw = np.asarray(subdominance(f[b], f[w], alpha, beta))
     return float(np.mean((c_bw < c_wb) + 0.5 * (c_bw == c_wb)))

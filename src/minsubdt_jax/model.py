@@ -5,8 +5,8 @@ timestep embedding is added to all three tokens of a step (no positional embeddi
 causal GPT-2 style pre-LN transformer (ReLU MLP, dropout), and a tanh action head read from each state token.
 
 Dropout masks come from :func:`hash_dropout`, a counter-based hash keyed by one threefry draw per call: the
-same inverted dropout as ``flax.linen.Dropout``, but about ten times cheaper on a CPU, where drawing
-threefry bits for every activation took ~20 % of a paper-preset train step (``benchmarks/README.md``).
+same inverted dropout as ``flax.linen.Dropout``, without drawing threefry bits for every activation, which
+is expensive on a CPU (``benchmarks/README.md``).
 """
 
 from __future__ import annotations

@@ -165,8 +165,7 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     if leave_one_out:
         # rank of row i's own demo G_i among the sorted demos (the first of its ties: removing any one of
         # equal values leaves the same multiset)
-        p = jax.vmap(lambda col, q: jnp.searchsorted(col, q, side="left"), in_axes=(0, 1), out_axes=1)(s_km, G)
-        p = p.astype(jnp.int32)
+        p = _count_below_rows(s_km, G).astype(jnp.int32)
         m_eff = M - 1
     else:
         p = jnp.full((N, K), M, jnp.int32)  # nothing removed
@@ -180,7 +179,7 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
         return s_flat[cols * M + jnp.minimum(r + (r >= p), M - 1)]
 
     def count_below(t):  # number of remaining demos < t
-        c = jax.vmap(lambda col, q: jnp.searchsorted(col, q, side="left"), in_axes=(0, 1), out_axes=1)(s_km, t)
+        c = _count_below_rows(s_km, t)
         return c - (p < c)
 
     # bisection for m* = min{m in [1, m_eff] : mean of the m smallest > x}; m_eff + 1 when no such m. The m-th
@@ -203,6 +202,11 @@ def _exact(F, G, beta, alpha_max, leave_one_out):
     alpha = jnp.minimum(alpha, alpha_max)
     per_feature = _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix)
     return MinSubdominance(value=per_feature.sum(-1), alpha=alpha, per_feature=per_feature)
+
+
+def _count_below_rows(s_km, q):
+    """``[N, K]``: for each query ``q[i, k]``, the number of entries of sorted row ``s_km[k]`` below it."""
+    return jax.vmap(lambda row, col: jnp.searchsorted(row, col, side="left"), in_axes=(0, 1), out_axes=1)(s_km, q)
 
 
 def _sort_rows(a):

@@ -165,7 +165,8 @@ def prepare(cfg: Config, verbose: bool = True) -> dict:
         print(f"learned costs (K'={cfg.cost_dim}): held-out pair accuracy {r['heldout_pair_accuracy']:.3f}, "
               f"train {r['train_pair_accuracy']:.3f}", flush=True)
     return dict(dataset=dataset, costs=costs, features=features, learned=learned,
-                data=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale, target_return=target, summary=summary)
+                data=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale,
+                target_return=target, summary=summary)
 
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
