@@ -1,4 +1,5 @@
-"""Data parallelism over a device mesh: the sharded train step equals the single-device one (issue: scale out).
+"""Data parallelism over a device mesh: the sharded train step and the sharded evaluation equal the
+single-device ones (issue: scale out).
 
 Runs in a subprocess with two forced CPU devices (XLA_FLAGS must be set before jax starts)."""
 
@@ -52,11 +53,30 @@ SCRIPT = textwrap.dedent("""
         assert "divisible" in str(e)
     else:
         raise AssertionError("an odd batch over 2 devices must fail")
+    # evaluation: 3 episodes over 2 devices (padded to 4, the first 3 scored) equal 3 episodes on one device
+    from minsubdt_jax.evaluate import PolicyParams, evaluate
+    hop = make_model(cfg, 3, 100)
+    pol = PolicyParams(model=init_state(hop, tx, cfg, 11).params, state_mean=np.zeros(11, np.float32),
+                       state_std=np.ones(11, np.float32), target_return=np.float32(0), rtg_scale=np.float32(1),
+                       subtract_rewards=np.float32(0))
+    demo = rng.uniform(0, 1, (6, 2))
+    evs = {d: evaluate("hopper", hop, pol, cfg.context_len, demo, num_episodes=3, horizon=30, seed=4,
+                       mesh=None if d == 1 else make_mesh(d)) for d in (1, 2)}
+    assert evs[1].returns.shape == evs[2].returns.shape == (3,)
+    np.testing.assert_array_equal(evs[1].lengths, evs[2].lengths)
+    np.testing.assert_allclose(evs[1].returns, evs[2].returns, rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(evs[1].costs, evs[2].costs, rtol=1e-4, atol=1e-5)
+    from minsubdt_jax.evaluate import _seed_rollout
+    run2 = _seed_rollout("hopper", hop, 4, 30, make_mesh(2))
+    stacked = jax.tree.map(lambda x: np.asarray(x)[None], pol)
+    from minsubdt_jax.evaluate import empty_context
+    ro = run2(stacked, empty_context(4, cfg.context_len, 11, 3), jax.random.PRNGKey(4)[None])
+    assert len(ro.observations.sharding.device_set) == 2 and not ro.observations.sharding.is_fully_replicated
     print("OK", out[1][0][-1], out[2][0][-1])
 """)
 
 
-def test_sharded_step_equals_single_device_step():
+def test_sharded_step_and_evaluation_equal_single_device():
     env = dict(os.environ)
     env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     env["JAX_PLATFORMS"] = "cpu"

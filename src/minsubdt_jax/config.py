@@ -9,6 +9,8 @@ import types
 import typing
 from dataclasses import dataclass
 
+from .parallel import distributed_settings
+
 
 @dataclass(frozen=True)
 class Config:
@@ -19,7 +21,8 @@ class Config:
     # subdom: MinSubDT on engineered costs | learned: MinSubDT on costs learned by eq. 3 | true: plain DT on
     # the dataset's rewards | none: behaviour cloning (the same transformer, every return token 0)
     returns: str = "subdom"
-    seed: int = 0  # training and evaluation seed
+    seed: int = 0  # training and evaluation seed (the first one, with --seeds)
+    seeds: int = 1  # train seeds seed, seed+1, ..., seed+seeds-1 as one program (vmapped in one jitted step)
     dataset_seed: int = 0  # seed of a recorded named dataset (the data stays fixed across training seeds)
     steps: int = 3000  # gradient steps
     preset: str = "cpu"
@@ -52,12 +55,18 @@ class Config:
     eval_episodes: int = 10  # 0 skips the final evaluation
     chunk_steps: int = 500  # steps per jitted lax.scan chunk; a checkpoint and a log line after each
     devices: int = 0  # data parallel over this many local devices (0: all); --batch-size must divide evenly
+    # several processes (jax.distributed); unset: from JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES /
+    # JAX_PROCESS_ID, else one process. Every process runs the same command; process 0 writes the run directory
+    coordinator_address: str | None = None  # host:port of process 0's coordinator
+    num_processes: int | None = None
+    process_id: int | None = None
 
     def run_dir(self) -> str:
         if self.out:
             return self.out
         name = self.dataset.rsplit("/", 1)[-1].removesuffix(".hdf5")
-        return f"runs/{self.env}-{name}-{self.returns}-s{self.seed}"
+        seeds = f"{self.seed}" if self.seeds == 1 else f"{self.seed}-{self.seed + self.seeds - 1}"
+        return f"runs/{self.env}-{name}-{self.returns}-s{seeds}"
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -86,10 +95,12 @@ def validate(cfg: Config) -> Config:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
                 "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps", "cost_dim",
-                "cost_steps", "cost_pairs")
+                "cost_steps", "cost_pairs", "seeds")
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if cfg.seed < 0 or cfg.dataset_seed < 0:
+        raise ValueError(f"--seed and --dataset-seed must be >= 0, got {cfg.seed} and {cfg.dataset_seed}")
     if cfg.devices < 0:
         raise ValueError(f"--devices must be >= 0 (0: all local devices), got {cfg.devices}")
     if cfg.eval_episodes < 0 or not 0 <= cfg.dropout < 1 or cfg.weight_decay < 0 or cfg.grad_clip <= 0:
@@ -102,6 +113,7 @@ def validate(cfg: Config) -> Config:
         raise ValueError(f"--rtg-scale must be > 0, got {cfg.rtg_scale}")
     if cfg.alpha_max is not None and not cfg.alpha_max > 0:
         raise ValueError(f"--alpha-max must be > 0, got {cfg.alpha_max}")
+    distributed_settings(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
     return cfg
 
 

@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from .parallel import shard_batch
+
 
 @dataclass(frozen=True)
 class EnvSpec:
@@ -59,7 +61,18 @@ def make_env(name: str):
     """The brax environment for ``name`` with MJX physics (cached: one instance, one compile per shape)."""
     from brax import envs as brax_envs
 
-    return brax_envs.get_environment(env_spec(name).brax_name, backend="mjx")
+    if jax.process_count() == 1:
+        return brax_envs.get_environment(env_spec(name).brax_name, backend="mjx")
+    # mujoco-mjx puts the model on jax.devices()[0], which in a multi-process job belongs to process 0 alone
+    # (another process could neither read it nor compile a rollout that closes over it): place it on this
+    # process's first device instead.
+    from unittest import mock
+
+    from brax.io import mjcf
+
+    put_model = functools.partial(mjcf.mjx.put_model, device=jax.local_devices()[0])
+    with mock.patch.object(mjcf.mjx, "put_model", put_model):
+        return brax_envs.get_environment(env_spec(name).brax_name, backend="mjx")
 
 
 def reference_returns(env: str) -> tuple[float, float]:
@@ -99,8 +112,12 @@ Policy = Callable[[Any, Any, jax.Array, jax.Array, jax.Array, jax.Array], tuple[
 
 
 @functools.lru_cache(maxsize=32)
-def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
+def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int, mesh=None):
     """Cached, jitted ``run(policy_params, policy_carry, rng) -> Rollout`` for ``num_episodes`` parallel episodes.
+
+    With a ``mesh`` (:func:`minsubdt_jax.parallel.make_mesh`, its size dividing ``num_episodes``) the episodes,
+    their policy carry and the recorded buffers are split over its devices; every episode's computation is
+    unchanged.
 
     Actions are clipped to ``[-1, 1]`` (recorded clipped). An ended episode's physics state is frozen and
     its later entries are zero. ``policy_params`` and ``policy_carry`` are traced, so one compile serves
@@ -111,18 +128,21 @@ def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
     n, H = int(num_episodes), int(horizon)
     if n < 1 or H < 1:
         raise ValueError(f"num_episodes and horizon must be >= 1, got {n} and {H}")
+    if mesh is not None and n % mesh.size:
+        raise ValueError(f"num_episodes ({n}) must be divisible by the mesh size ({mesh.size})")
 
     def run(policy_params, policy_carry, rng):
         rng, reset_rng = jax.random.split(rng)
-        state = jax.vmap(brax_env.reset)(jax.random.split(reset_rng, n))
+        state = shard_batch(jax.vmap(brax_env.reset)(jax.random.split(reset_rng, n)), mesh)
+        policy_carry = shard_batch(policy_carry, mesh)
         pipe = state.pipeline_state
-        buffers = (
+        buffers = shard_batch((
             jnp.zeros((H, n, spec.obs_dim)),
             jnp.zeros((H, n, spec.act_dim)),
             jnp.zeros((H, n)),
             jnp.zeros((H,) + pipe.qpos.shape),
             jnp.zeros((H,) + pipe.qvel.shape),
-        )
+        ), mesh, axis=1)
         init = (0, state, policy_carry, jnp.zeros(n, bool), jnp.zeros(n, bool), jnp.zeros(n), rng, buffers,
                 jnp.zeros(n, jnp.int32))
 
@@ -149,8 +169,8 @@ def make_rollout(env: str, policy: Policy, num_episodes: int, horizon: int):
 
         c = jax.lax.while_loop(cond, body, init)
         obs_b, act_b, rew_b, qpos_b, qvel_b = (b.swapaxes(0, 1) for b in c[7])
-        return Rollout(observations=obs_b, actions=act_b, rewards=rew_b, lengths=c[8], terminated=c[4],
-                       qpos=qpos_b, qvel=qvel_b)
+        return shard_batch(Rollout(observations=obs_b, actions=act_b, rewards=rew_b, lengths=c[8],
+                                   terminated=c[4], qpos=qpos_b, qvel=qvel_b), mesh)
 
     return jax.jit(run)
 

@@ -20,6 +20,7 @@ from flax import struct
 from .costs import engineered_costs
 from .envs import make_rollout, normalized_score
 from .model import DecisionTransformer
+from .parallel import gather
 from .subdominance import min_subdominance
 
 
@@ -115,26 +116,60 @@ class EvalResult:
 
 def evaluate(env: str, model: DecisionTransformer, params: PolicyParams, context_len: int, demo_costs,
              *, num_episodes: int, horizon: int = 1000, beta=1.0, seed: int = 0, learned=None,
-             demo_features=None) -> EvalResult:
+             demo_features=None, mesh=None) -> EvalResult:
     """Roll ``model`` out for ``num_episodes`` parallel episodes of at most ``horizon`` steps and score them.
 
     ``demo_costs [M, K]`` are the dataset's engineered cost features; each rollout's min-subdominance
     (eq. 2, margin ``beta``) is computed against them, and whether it beats their mean on every feature.
     With ``learned`` (a :class:`minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']`` (the
     demos' learned features), the rollouts' min-subdominance on the learned features is reported too.
+    With a ``mesh`` the episodes are split over its devices (see :func:`evaluate_seeds`).
     """
-    obs_dim = params.state_mean.shape[0]
-    run = make_rollout(env, dt_policy(model), num_episodes, horizon)
-    ro = jax.device_get(run(params, empty_context(num_episodes, context_len, obs_dim, model.act_dim),
-                            jax.random.PRNGKey(seed)))
-    costs = np.asarray(engineered_costs(env, ro.observations, ro.lengths, horizon))
-    returns = np.asarray(ro.rewards).sum(1)
+    stacked = jax.tree.map(lambda x: jnp.asarray(x)[None], params)
+    return evaluate_seeds(env, model, stacked, context_len, demo_costs, num_episodes=num_episodes, horizon=horizon,
+                          beta=beta, seeds=[seed], learned=None if learned is None else [learned],
+                          demo_features=None if demo_features is None else [demo_features], mesh=mesh)[0]
+
+
+def evaluate_seeds(env: str, model: DecisionTransformer, params: PolicyParams, context_len: int, demo_costs,
+                   *, num_episodes: int, horizon: int = 1000, beta=1.0, seeds, learned=None, demo_features=None,
+                   mesh=None) -> list[EvalResult]:
+    """:func:`evaluate` for S models at once: ``params`` has a leading seed axis ``[S, ...]`` and ``seeds [S]``
+    are their evaluation seeds; one jitted program rolls out ``S x num_episodes`` episodes (``vmap`` over the
+    seed axis). ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed).
+
+    With a ``mesh`` (:func:`minsubdt_jax.parallel.make_mesh`) each seed's episodes are split over the mesh's
+    devices, in every process of a multi-process job; the number of episodes rolled out is rounded up to a
+    multiple of the mesh size and the first ``num_episodes`` are scored, so the result does not depend on the
+    device count. Returns one :class:`EvalResult` per seed.
+    """
+    size = 1 if mesh is None else mesh.size
+    n_run = -(-num_episodes // size) * size
+    obs_dim = params.state_mean.shape[-1]
+    run = _seed_rollout(env, model, n_run, horizon, mesh)
+    ctx = empty_context(n_run, context_len, obs_dim, model.act_dim)
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+    ro = gather(run(params, ctx, keys))
     demo_costs = np.asarray(demo_costs)
-    ms = min_subdominance(costs, demo_costs, beta)
-    learned_ms = None
-    if learned is not None:
-        feats = learned.features(ro.observations, ro.lengths)
-        learned_ms = np.asarray(min_subdominance(feats, np.asarray(demo_features), beta).value)
-    return EvalResult(returns=returns, lengths=np.asarray(ro.lengths), normalized=normalized_score(env, returns),
-                      costs=costs, min_subdominance=np.asarray(ms.value),
-                      beats_mean_demo=np.all(costs < demo_costs.mean(0), axis=1), learned_min_subdominance=learned_ms)
+    results = []
+    for i in range(len(seeds)):
+        obs, lengths = ro.observations[i, :num_episodes], ro.lengths[i, :num_episodes]
+        costs = np.asarray(engineered_costs(env, obs, lengths, horizon))
+        returns = np.asarray(ro.rewards[i, :num_episodes]).sum(1)
+        ms = min_subdominance(costs, demo_costs, beta)
+        learned_ms = None
+        if learned is not None:
+            feats = learned[i].features(obs, lengths)
+            learned_ms = np.asarray(min_subdominance(feats, np.asarray(demo_features[i]), beta).value)
+        results.append(EvalResult(
+            returns=returns, lengths=np.asarray(lengths), normalized=normalized_score(env, returns), costs=costs,
+            min_subdominance=np.asarray(ms.value), beats_mean_demo=np.all(costs < demo_costs.mean(0), axis=1),
+            learned_min_subdominance=learned_ms))
+    return results
+
+
+@functools.lru_cache(maxsize=16)
+def _seed_rollout(env: str, model: DecisionTransformer, num_episodes: int, horizon: int, mesh):
+    """Jitted ``run(params [S, ...], context, rngs [S]) -> Rollout [S, n, ...]`` (cached per shape)."""
+    run = make_rollout(env, dt_policy(model), num_episodes, horizon, mesh)
+    return jax.jit(jax.vmap(run, in_axes=(0, None, 0)))

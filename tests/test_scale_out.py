@@ -1,0 +1,131 @@
+"""Seeds as one program and several processes (issue: scale out).
+
+``--seeds 3`` must train exactly the three models that three single-seed runs train, and two real processes
+on localhost (JAX's distributed runtime, gloo CPU collectives) must train the one-process model."""
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+import pytest
+
+from minsubdt_jax.config import PRESETS, validate
+from minsubdt_jax.train import train
+
+
+# Adam normalises each update, so a parameter whose gradient is ~0 up to float noise (a bias in front of a
+# LayerNorm) moves by up to lr per step either way when a batched matmul sums in another order: parameters
+# agree to lr * steps, losses and rollouts tightly (the same bound as tests/test_parallel.py).
+ADAM_NOISE = 16 * PRESETS["smoke"].learning_rate
+
+
+def _cfg(path, out, **kw):
+    base = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=path, episode_length=60, out=str(out))
+    return validate(dataclasses.replace(base, **kw))
+
+
+def _params(run_dir, like=None):
+    """(last step, parameter leaves) of a run's checkpoint; ``like`` (another run's dir) gives the target tree
+    for a checkpoint written by several processes."""
+    mngr = ocp.CheckpointManager(os.path.abspath(os.path.join(run_dir, "checkpoints")))
+    step = mngr.latest_step()
+    if like is None:
+        tree = mngr.restore(step)
+    else:
+        other = ocp.CheckpointManager(os.path.abspath(os.path.join(like, "checkpoints")))
+        tree = mngr.restore(step, args=ocp.args.StandardRestore(other.restore(other.latest_step())))
+    return step, [np.asarray(x) for x in jax.tree.leaves(tree["params"])]
+
+
+def _losses(run_dir):
+    return np.array([json.loads(ln)["loss_per_seed"] for ln in open(os.path.join(run_dir, "metrics.jsonl"))])
+
+
+@pytest.fixture(scope="module")
+def single_runs(small_dataset_path, tmp_path_factory):
+    """Three ordinary runs, seeds 0, 1, 2."""
+    root = tmp_path_factory.mktemp("single")
+    return {s: (root / f"s{s}", train(_cfg(small_dataset_path, root / f"s{s}", seed=s), verbose=False))
+            for s in range(3)}
+
+
+def test_seeds_in_one_program_equal_single_seed_runs(single_runs, small_dataset_path, tmp_path):
+    out = tmp_path / "seeds3"
+    res = train(_cfg(small_dataset_path, out, seed=0, seeds=3), verbose=False)
+    assert res["seeds"] == [0, 1, 2]
+    step, params = _params(out)
+    losses = _losses(out)  # [chunks, 3]
+    assert step == 20 and losses.shape == (2, 3)
+    for s, (run_dir, single) in single_runs.items():
+        step_s, params_s = _params(run_dir)
+        assert step_s == 20 and len(params_s) == len(params) > 5
+        for a, b in zip(params, params_s):  # the seed axis leads; seed s is row s
+            assert a.shape == (3,) + b.shape[1:] and b.shape[0] == 1
+            np.testing.assert_allclose(a[s], b[0], rtol=1e-2, atol=ADAM_NOISE)
+        np.testing.assert_allclose(losses[:, s], _losses(run_dir)[:, 0], rtol=1e-5)
+        ev, ev_s = res["eval_per_seed"][s], single["eval"]
+        assert ev["seed"] == s and ev_s["seed"] == s
+        np.testing.assert_array_equal([len(c) for c in ev["costs"]], [len(c) for c in ev_s["costs"]])
+        np.testing.assert_allclose(ev["returns"], ev_s["returns"], rtol=1e-3, atol=1e-3)
+    # the seed-level summary: mean ± std over the three seeds' means
+    means = [single["eval"]["normalized_score_mean"] for _, single in single_runs.values()]
+    np.testing.assert_allclose(res["eval"]["normalized_score_mean"], np.mean(means), rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(res["eval"]["normalized_score_std"], np.std(means), rtol=1e-2, atol=1e-3)
+    assert res["eval"]["episodes"] == 6 and len(res["eval"]["returns"]) == 6
+
+
+def test_seeds_with_learned_costs_train_one_cost_model_per_seed(small_dataset_path, tmp_path):
+    """--returns learned: each seed learns its own costs (eq. 3), so each trains on its own returns-to-go."""
+    kw = dict(returns="learned", cost_steps=20, eval_episodes=0, steps=10)
+    res = train(_cfg(small_dataset_path, tmp_path / "both", seeds=2, **kw), verbose=False)
+    accs = [r["heldout_pair_accuracy"] for r in res["dataset"]["learned_costs_per_seed"]]
+    assert len(accs) == 2
+    both = _losses(tmp_path / "both")
+    for s in range(2):
+        one = train(_cfg(small_dataset_path, tmp_path / f"one{s}", seed=s, **kw), verbose=False)
+        assert one["dataset"]["learned_costs"]["heldout_pair_accuracy"] == pytest.approx(accs[s])
+        np.testing.assert_allclose(both[:, s], _losses(tmp_path / f"one{s}")[:, 0], rtol=1e-5)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_train_the_one_process_model(single_runs, small_dataset_path, tmp_path, cli_env):
+    """Two real processes on localhost, one CPU device each: the batch is split over them (gloo all-reduce)."""
+    out = tmp_path / "two"
+    args = [sys.executable, "-m", "minsubdt_jax.train", "--preset", "smoke", "--env", "hopper", "--episode-length",
+            "60", "--dataset", small_dataset_path, "--out", str(out), "--num-processes", "2",
+            "--coordinator-address", f"localhost:{_free_port()}"]
+    env = dict(cli_env, JAX_PLATFORMS="cpu")
+    env.pop("XLA_FLAGS", None)
+    procs = [subprocess.Popen(args + ["--process-id", str(i)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for i in (1, 0)]
+    try:
+        outs = [p.communicate(timeout=600) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    for p, (o, e) in zip(procs, outs):
+        assert p.returncode == 0, o[-2000:] + e[-4000:]
+    stdout0 = outs[1][0]
+    assert "2 device(s) in 2 process(es): 4 sequences each" in stdout0 and "wrote" in stdout0
+    assert "dataset" not in outs[0][0] and "wrote" not in outs[0][0]  # process 0 alone reports and writes
+    run_dir, single = single_runs[0]
+    step, params = _params(out, like=run_dir)
+    _, params_1 = _params(run_dir)
+    assert step == 20
+    for a, b in zip(params, params_1):
+        np.testing.assert_allclose(a, b, rtol=1e-2, atol=ADAM_NOISE)
+    np.testing.assert_allclose(_losses(out), _losses(run_dir), rtol=2e-4)
+    res = json.loads((out / "results.json").read_text())
+    assert res["eval"]["episodes"] == 2  # the episodes were split over the two processes and gathered
+    np.testing.assert_allclose(res["eval"]["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
