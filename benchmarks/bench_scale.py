@@ -1,6 +1,7 @@
 """Scale-out step times: 1 vs 2 devices, 1 vs 2 processes, ``--seeds 3`` in one program vs three runs.
 
-    python benchmarks/bench_scale.py [--presets cpu paper] [--rounds 2] [--json benchmarks/results/scale_cpu.json]
+    python benchmarks/bench_scale.py [--presets cpu paper] [--rounds 2] [--json benchmarks/results/scale.json]
+    python benchmarks/bench_scale.py --platform cuda --configs "1 device" "3 seeds"   # on a 1-GPU machine
 
 Each configuration runs in a fresh worker process (``--worker``) that times the training chunk exactly as
 ``python -m minsubdt_jax.train`` runs it (``init_seed_states``, the vmapped ``make_train_chunk`` on a
@@ -81,10 +82,11 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def run_config(name: str, preset: str, steps: int, repeats: int) -> dict:
+def run_config(name: str, preset: str, steps: int, repeats: int, platform: str = "cpu") -> dict:
     devices, processes, seeds, seed_axis = CONFIGS[name]
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
-    env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}" if devices > 1 else ""
+    env = dict(os.environ, JAX_PLATFORMS=platform)
+    if platform == "cpu":  # forced host devices; on a GPU the devices are real, one per GPU
+        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}" if devices > 1 else ""
     cmd = [sys.executable, __file__, "--worker", "--presets", preset, "--seeds", str(seeds), "--devices",
            str(devices), "--steps", str(steps), "--repeats", str(repeats)] + ([] if seed_axis else ["--plain-step"])
     if processes > 1:
@@ -108,6 +110,8 @@ def main():
     p.add_argument("--rounds", type=int, default=2)
     p.add_argument("--steps", type=int, default=0, help="steps per timed chunk (default: 50 cpu, 10 paper)")
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--platform", default="cpu", choices=["cpu", "cuda"],
+                   help="cuda: real GPUs ('2 devices' needs 2 of them; '2 processes' is CPU only)")
     p.add_argument("--json")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--seeds", type=int, default=1, help=argparse.SUPPRESS)
@@ -123,15 +127,17 @@ def main():
         init_distributed(a.coordinator_address, a.num_processes, a.process_id)
         print(json.dumps(worker(a.presets[0], a.seeds, a.devices, a.steps, a.repeats, not a.plain_step)))
         return
+    if a.platform != "cpu" and "2 processes" in a.configs:
+        p.error("'2 processes' runs two CPU workers on localhost; leave it out of --configs with --platform cuda")
     import jax
 
-    out = {"machine": {"cpu_count": os.cpu_count(), "jax": jax.__version__}, "rounds": []}
+    out = {"machine": {"cpu_count": os.cpu_count(), "jax": jax.__version__, "platform": a.platform}, "rounds": []}
     for r in range(a.rounds):
         for preset in a.presets:
             steps = a.steps or (50 if preset != "paper" else 10)
             row = {"round": r, "preset": preset, "steps": steps}
             for name in a.configs:
-                row[name] = run_config(name, preset, steps, a.repeats)
+                row[name] = run_config(name, preset, steps, a.repeats, a.platform)
                 print(f"round {r} {preset:5s} {name:22s} {row[name]['ms_per_step']:8.1f} ms/step "
                       f"(compile {row[name]['compile_s']:.1f} s)", flush=True)
             out["rounds"].append(row)
