@@ -4,10 +4,11 @@
     python experiments/table1.py run --seeds 0 --envs hopper --datasets medium
     python experiments/table1.py aggregate            # tables and plots from the results present
 
-Every run (env x dataset x method x seed) trains with ``minsubdt_jax.train.train`` in
-``runs/table1/{preset}/{name}`` (checkpoints; resumable) and writes its compact result to
-``experiments/results/table1/{preset}/{name}.json``; a run whose result exists is skipped, so an interrupted
-sweep resumes where it stopped (seed 0 of every cell first, then seed 1, then seed 2). The datasets are the
+Every run (env x dataset x method x seed) trains with ``minsubdt_jax.train.train`` and writes its compact
+result to ``experiments/results/table1/{preset}/{name}.json``; a run whose result exists is skipped, so an
+interrupted sweep resumes where it stopped (the lowest missing seed of every cell first). A cell's missing
+consecutive seeds a..b train together as one ``--seeds S`` program, checkpointed (resumable) in
+``runs/table1/{preset}/{env}-{dataset}-{method}-s{a}-{b}`` (``-s{a}`` for one seed). The datasets are the
 named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across training seeds.
 ``aggregate`` writes ``experiments/results/table1.md`` / ``.json`` (normalised score mean ± std over the
 seeds present, with their count; averages with and without medium-replay; the better-than-demonstrated
@@ -70,41 +71,76 @@ def compact(results: dict) -> dict:
     return rnd({k: results[k] for k in ("config", "dataset", "train", "eval", "references") if k in results})
 
 
+def seed_runs(seeds) -> list[tuple[int, int]]:
+    """Sorted seeds -> ``(first, count)`` runs of consecutive seeds, each one ``--seeds count`` program."""
+    runs = []
+    for s in sorted(set(seeds)):
+        if runs and runs[-1][0] + runs[-1][1] == s:
+            runs[-1] = (runs[-1][0], runs[-1][1] + 1)
+        else:
+            runs.append((s, 1))
+    return runs
+
+
+def per_seed_results(res: dict, i: int) -> dict:
+    """Seed ``i`` of a ``--seeds S`` run's results, shaped as that seed's single run would report them."""
+    seed = res["seeds"][i] if "seeds" in res else res["config"]["seed"]
+    out = {k: v for k, v in res.items() if k not in ("seeds", "eval_per_seed")}
+    out["config"] = dict(res["config"], seed=seed, seeds=1)
+    if "learned_costs_per_seed" in res["dataset"]:
+        out["dataset"] = {k: v for k, v in res["dataset"].items() if k != "learned_costs_per_seed"}
+        out["dataset"]["learned_costs"] = res["dataset"]["learned_costs_per_seed"][i]
+    if "eval_per_seed" in res:
+        out["eval"] = res["eval_per_seed"][i]
+    return out
+
+
 def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds=(0, 1, 2), runs_root="runs/table1",
               results_root=RESULTS, train_fn=None, log=print) -> dict:
-    """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (names)."""
+    """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
+
+    A cell's missing consecutive seeds train together as one ``--seeds S`` program (vmapped over seeds, equal
+    to S single runs: ``tests/test_scale_out.py``); each seed's result is written as its own file."""
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.config import PRESETS
 
     out_dir = result_dir(preset, results_root)
     os.makedirs(out_dir, exist_ok=True)
-    todo = [(e, d, m, s) for s in seeds for d in datasets for e in envs for m in methods]
+    path = lambda e, d, m, s: os.path.join(out_dir, run_name(e, d, m, s) + ".json")  # noqa: E731
     status = {"done": [], "skipped": [], "failed": []}
-    for i, (env, ds, method, seed) in enumerate(todo):
-        name = run_name(env, ds, method, seed)
-        path = os.path.join(out_dir, name + ".json")
-        if os.path.exists(path):
-            status["skipped"].append(name)
-            continue
-        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, returns=method, seed=seed,
-                                  out=os.path.join(runs_root, preset, name))
-        log(f"[{i + 1}/{len(todo)}] {name} ...")
+    todo = []
+    for d in datasets:
+        for e in envs:
+            for m in methods:
+                have = [s for s in seeds if os.path.exists(path(e, d, m, s))]
+                status["skipped"] += [run_name(e, d, m, s) for s in have]
+                todo += [(first, d, e, m, n) for first, n in seed_runs(set(seeds) - set(have))]
+    todo.sort(key=lambda t: t[0])  # the lowest missing seed of every cell first (stable: datasets, envs, methods)
+    for i, (first, ds, env, method, n) in enumerate(todo):
+        names = [run_name(env, ds, method, s) for s in range(first, first + n)]
+        label = names[0] if n == 1 else f"{names[0]}..{first + n - 1}"
+        suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
+        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, returns=method, seed=first, seeds=n,
+                                  out=os.path.join(runs_root, preset, f"{env}-{ds}-{method}{suffix}"))
+        log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
         try:
             res = train_fn(cfg, resume=os.path.exists(os.path.join(cfg.out, "config.json")), verbose=False)
         except Exception:  # one failed cell must not stop the sweep; it is reported and retried next time
             log(traceback.format_exc())
-            status["failed"].append(name)
+            status["failed"] += names
             continue
-        tmp = path + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(compact(res), f)
-        os.replace(tmp, path)  # a result file is complete or absent
-        ev = res.get("eval", {})
-        log(f"[{i + 1}/{len(todo)}] {name}: normalised {ev.get('normalized_score_mean', float('nan')):.1f} "
-            f"({time.time() - t0:.0f} s)")
-        status["done"].append(name)
+        scores = []
+        for j, name in enumerate(names):
+            one = per_seed_results(res, j)
+            dst = path(env, ds, method, first + j)
+            with open(dst + ".tmp", "w") as f:
+                json.dump(compact(one), f)
+            os.replace(dst + ".tmp", dst)  # a result file is complete or absent
+            scores.append(f"{one.get('eval', {}).get('normalized_score_mean', float('nan')):.1f}")
+        log(f"[{i + 1}/{len(todo)}] {label}: normalised {' '.join(scores)} ({time.time() - t0:.0f} s)")
+        status["done"] += names
     return status
 
 

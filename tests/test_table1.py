@@ -19,54 +19,79 @@ def table1():
 
 
 def fake_results(cfg):
-    score = {"subdom": 50.0, "learned": 40.0, "true": 60.0, "none": 30.0}[cfg.returns] + cfg.seed
-    return {"config": {"env": cfg.env, "dataset": cfg.dataset, "returns": cfg.returns, "seed": cfg.seed},
-            "dataset": {"normalized_score_mean": 45.0, "min_subdominance_mean": 1.5, "costs_sample": [[0.5, 0.5]],
-                        "costs_mean": {"x_velocity": 0.5, "z_velocity": 0.5},
-                        "spearman_neg_min_subdominance_vs_return": 0.9 if cfg.returns == "subdom" else 0.7,
-                        "learned_costs": {"heldout_pair_accuracy": 0.8}},
-            "train": {"steps": 1},
-            "eval": {"normalized_score_mean": score, "better_than_mean_demo_share": 0.5 + 0.1 * cfg.seed,
-                     "min_subdominance_mean": 1.0, "costs": [[0.4, 0.5], [0.6, 0.4]]}}
+    """``train``'s results for ``cfg.seeds`` seeds from ``cfg.seed`` (per-seed lists as the real one writes)."""
+    seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
+    evals = [{"seed": s, "normalized_score_mean": {"subdom": 50.0, "learned": 40.0, "true": 60.0, "none": 30.0}
+              [cfg.returns] + s, "better_than_mean_demo_share": 0.5 + 0.1 * s, "min_subdominance_mean": 1.0,
+              "costs": [[0.4, 0.5], [0.6, 0.4]]} for s in seeds]
+    res = {"config": {"env": cfg.env, "dataset": cfg.dataset, "returns": cfg.returns, "seed": cfg.seed,
+                      "seeds": cfg.seeds}, "seeds": seeds,
+           "dataset": {"normalized_score_mean": 45.0, "min_subdominance_mean": 1.5, "costs_sample": [[0.5, 0.5]],
+                       "costs_mean": {"x_velocity": 0.5, "z_velocity": 0.5},
+                       "spearman_neg_min_subdominance_vs_return": 0.9 if cfg.returns == "subdom" else 0.7,
+                       "learned_costs": {"heldout_pair_accuracy": 0.8}},
+           "train": {"steps": 1}, "eval_per_seed": evals,
+           "eval": evals[0] if len(seeds) == 1 else {"normalized_score_mean": -1.0}}  # across seeds: unused
+    if cfg.returns == "learned" and len(seeds) > 1:
+        res["dataset"]["learned_costs_per_seed"] = [{"heldout_pair_accuracy": 0.8 + 0.01 * s} for s in seeds]
+    return res
+
+
+def test_seed_runs_groups_consecutive_seeds(table1):
+    assert table1.seed_runs([2, 0, 1]) == [(0, 3)]
+    assert table1.seed_runs({0, 2, 3, 5}) == [(0, 1), (2, 2), (5, 1)]
+    assert table1.seed_runs([]) == []
 
 
 def test_sweep_skips_finished_runs_and_aggregates_partial_results(table1, tmp_path):
     calls = []
 
     def fake_train(cfg, resume=False, verbose=False):
-        calls.append((cfg.env, cfg.dataset, cfg.returns, cfg.seed))
-        if cfg.returns == "none" and cfg.seed == 1:
+        calls.append((cfg.env, cfg.dataset, cfg.returns, cfg.seed, cfg.seeds, os.path.basename(cfg.out)))
+        if cfg.returns == "none" and cfg.seed + cfg.seeds > 1:  # any program that trains seed 1 of BC
             raise RuntimeError("simulated crash")
         return fake_results(cfg)
 
     kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
               results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
-    st = table1.run_sweep(methods=("subdom", "none"), seeds=(0, 1), **kw)
-    assert len(calls) == 4 and st["failed"] == ["hopper-medium-none-s1"] and len(st["done"]) == 3
-    # seed 0 of every cell comes first
-    assert [c[3] for c in calls] == [0, 0, 1, 1]
+    st = table1.run_sweep(methods=("subdom", "none"), seeds=(0,), **kw)
+    assert calls == [("hopper", "medium", "subdom", 0, 1, "hopper-medium-subdom-s0"),
+                     ("hopper", "medium", "none", 0, 1, "hopper-medium-none-s0")] and len(st["done"]) == 2
     calls.clear()
-    st = table1.run_sweep(methods=("subdom", "none", "true"), seeds=(0, 1), **kw)
-    # finished runs are skipped; the failed one and the new method are (re)tried
-    assert sorted(calls) == sorted([("hopper", "medium", "none", 1), ("hopper", "medium", "true", 0),
-                                    ("hopper", "medium", "true", 1)])
-    assert len(st["skipped"]) == 3 and st["failed"] == ["hopper-medium-none-s1"]
+    st = table1.run_sweep(methods=("subdom", "none", "learned"), seeds=(0, 1, 2), **kw)
+    # finished seeds are skipped; a cell's missing consecutive seeds are one --seeds program; lowest seed first
+    assert calls == [("hopper", "medium", "learned", 0, 3, "hopper-medium-learned-s0-2"),
+                     ("hopper", "medium", "subdom", 1, 2, "hopper-medium-subdom-s1-2"),
+                     ("hopper", "medium", "none", 1, 2, "hopper-medium-none-s1-2")]
+    assert len(st["skipped"]) == 2 and st["failed"] == ["hopper-medium-none-s1", "hopper-medium-none-s2"]
+    calls.clear()
+    st = table1.run_sweep(methods=("subdom", "none", "learned", "true"), seeds=(0, 1), **kw)
+    # the failed program is retried (for the seeds asked now), the new method trained
+    assert calls == [("hopper", "medium", "true", 0, 2, "hopper-medium-true-s0-1"),
+                     ("hopper", "medium", "none", 1, 1, "hopper-medium-none-s1")]
+    assert len(st["skipped"]) == 5 and st["failed"] == ["hopper-medium-none-s1"]
+    # a multi-seed program's files read as that seed's single run, its own learned-cost report included
+    res_dir = tmp_path / "res" / "table1" / "smoke"
+    r2 = json.loads((res_dir / "hopper-medium-learned-s2.json").read_text())
+    assert r2["config"]["seed"] == 2 and r2["config"]["seeds"] == 1 and r2["eval"]["normalized_score_mean"] == 42.0
+    assert r2["dataset"]["learned_costs"]["heldout_pair_accuracy"] == pytest.approx(0.82)
+    assert "learned_costs_per_seed" not in r2["dataset"] and "eval_per_seed" not in r2
 
     out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=True)
     cell = out["table"]["medium/hopper"]
-    assert cell["subdom"]["mean"] == pytest.approx(50.5) and cell["subdom"]["std"] == pytest.approx(0.5)
-    assert cell["subdom"]["n_seeds"] == 2 and cell["none"]["n_seeds"] == 1 and cell["none"]["mean"] == 30.0
+    assert cell["subdom"]["mean"] == pytest.approx(51.0) and cell["subdom"]["std"] == pytest.approx(np.std([0, 1, 2]))
+    assert cell["subdom"]["n_seeds"] == 3 and cell["none"]["n_seeds"] == 1 and cell["none"]["mean"] == 30.0
     assert cell["true"]["better_than_mean_demo_share"] == pytest.approx(0.55)
-    assert "learned" not in cell
+    assert cell["learned"]["n_seeds"] == 3 and cell["learned"]["mean"] == pytest.approx(41.0)
     av = out["averages"]["all"]
-    assert av["subdom"]["cells"] == 1 and av["subdom"]["of"] == 9 and av["learned"]["mean"] is None
+    assert av["subdom"]["cells"] == 1 and av["subdom"]["of"] == 9
     md = (tmp_path / "agg" / "table1.md").read_text()
     assert out["cost_rank_agreement"]["medium/hopper"]["engineered_spearman"] == 0.9
-    assert "50.5 ± 0.5 (2)" in md and "30.0 ± 0.0 (1)" in md and "Published" in md
+    assert "51.0 ± 0.8 (3)" in md and "30.0 ± 0.0 (1)" in md and "Published" in md
     assert (tmp_path / "agg" / "table1_costs_hopper.png").exists()
-    assert json.loads((tmp_path / "agg" / "table1.json").read_text())["runs"] == 5
+    assert json.loads((tmp_path / "agg" / "table1.json").read_text())["runs"] == 9
     # every result file is complete JSON (written atomically)
-    files = os.listdir(tmp_path / "res" / "table1" / "smoke")
-    assert len(files) == 5 and not any(f.endswith(".tmp") for f in files)
-    assert np.isclose(json.loads((tmp_path / "res" / "table1" / "smoke" / "hopper-medium-true-s1.json").read_text())
+    files = os.listdir(res_dir)
+    assert len(files) == 9 and not any(f.endswith(".tmp") for f in files)
+    assert np.isclose(json.loads((res_dir / "hopper-medium-true-s1.json").read_text())
                       ["eval"]["normalized_score_mean"], 61.0)
