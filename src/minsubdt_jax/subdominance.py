@@ -8,19 +8,18 @@ Eq. 2 minimises over alpha and beta, but with both free the minimum is trivially
 as in the public code of this family of losses, ``beta`` is a fixed margin and the minimum is taken over
 ``alpha >= 0`` (optionally capped by ``alpha_max``). The problem separates per row and per feature into
 the one-dimensional convex, piecewise-linear ``g(a) = 1/M sum_j [a (x - s_j) + beta]_+`` which
-``method="exact"`` minimises exactly and ``method="optax"`` by projected Adam.
+``method="exact"`` minimises exactly and ``method="optax"`` by Adam on ``log a``
+(:mod:`minsubdt_jax.subdominance_solvers`).
 """
 
 from __future__ import annotations
 
-import math
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from flax import struct
+
+from . import subdominance_solvers as solvers
 
 
 def subdominance(f, f_demo, alpha, beta):
@@ -88,7 +87,6 @@ def min_subdominance(
     l2: float = 0.0,
     steps: int = 500,
     learning_rate: float = 0.1,
-    chunk_size: int = 256,
 ) -> MinSubdominance:
     """Minimum subdominance of each row of ``F`` against the demo set ``G`` (seed eq. 2).
 
@@ -100,13 +98,14 @@ def min_subdominance(
       beta: margin, scalar or ``[K]``, every entry > 0.
       alpha_max: optional upper bound on alpha.
       leave_one_out: exclude pair ``(i, i)``; requires ``N == M`` (scoring the demo set itself) and M >= 2.
-      method: ``"exact"`` — sort the demos once per feature, then one bisection per row over running means
-        (``O((N + M) log M)``, never builds the ``[N, M]`` difference matrix); ``"optax"`` — projected Adam
-        on ``alpha`` in chunks of ``chunk_size`` rows (``O(steps * N * M)``).
+      method: ``"exact"`` — one bisection per row over the running means of the sorted demos;
+        ``"optax"`` — Adam (optax) on ``log alpha``, ``steps`` steps. Both read the objective from the demos
+        sorted once per feature (``O((N + M) log M)`` resp. ``O(M log M + steps N log M)``) and never build the
+        ``[N, M]`` difference matrix (:mod:`minsubdt_jax.subdominance_solvers`).
       l2: ``optax`` only: penalty ``l2 * ||alpha_i||^2`` added to each row's objective (``value`` reports
         the subdominance without the penalty).
-      steps, learning_rate, chunk_size: ``optax`` only. ``learning_rate`` is in units of alpha times the
-        demo-set standard deviation of the feature (so it is scale-free); it decays to 0 by cosine.
+      steps, learning_rate: ``optax`` only; ``learning_rate`` is in units of ``log alpha`` (scale-free) and
+        decays to 0 by cosine.
     Returns:
       :class:`MinSubdominance` with ``value [N]``, ``alpha [N, K]``, ``per_feature [N, K]``.
     """
@@ -124,190 +123,15 @@ def min_subdominance(
     if method == "exact":
         if l2:
             raise ValueError("l2 is only supported by method='optax'")
-        return _exact(F, G, beta, amax, leave_one_out)
-    if method == "optax":
-        if steps < 1 or chunk_size < 1 or not learning_rate > 0 or l2 < 0:
-            raise ValueError("optax needs steps >= 1, chunk_size >= 1, learning_rate > 0 and l2 >= 0")
-        return _optax(F, G, beta, amax, leave_one_out, float(l2), int(steps), float(learning_rate), int(chunk_size))
-    raise ValueError(f"method must be 'exact' or 'optax', got {method!r}")
-
-
-# ---------------------------------------------------------------------------------------------------------
-# exact solver
-# ---------------------------------------------------------------------------------------------------------
-
-
-@partial(jax.jit, static_argnames="leave_one_out")
-def _exact(F, G, beta, alpha_max, leave_one_out):
-    """Exact minimiser of eq. 2 per row and feature.
-
-    For one row (value ``x``) and feature, with the demo values sorted ``s_0 <= ... <= s_{M-1}`` and running
-    means ``mu_m = (s_0 + ... + s_{m-1}) / m``: the slope of ``g`` while the ``m`` smallest demos are active is
-    ``m (x - mu_m) / M``. ``mu_m`` is non-decreasing in m, so the minimiser is the breakpoint
-    ``a* = beta / (s_{m*-1} - x)`` where ``m*`` is the first m with ``mu_m > x`` (``a* = 0`` if there is none,
-    i.e. ``x >= mean(s)``). Under a cap the minimiser is ``min(a*, alpha_max)`` by convexity. With
-    leave-one-out, the row's own demo (rank ``p`` in the sorted order) is removed from ``s`` implicitly.
-    """
-    N, K = F.shape
-    M = G.shape[0]
-    # Orderings and ties use the raw values (x, s), so a demo equal to x always compares equal to it. Sums use
-    # values shifted by the demo mean (xc, P): better rounding, and a shift leaves every difference unchanged.
-    # Per-feature tables are stored flat, feature-major ([K * M]), so every lookup is a 1-D gather.
-    center = jnp.mean(G, axis=0)
-    x = F  # [N, K]
-    xc = F - center
-    s_km = _sort_rows(G.T)  # [K, M]
-    s_flat = s_km.reshape(-1)  # [K * M] sorted per feature
-    sc_km = s_km - center[:, None]
-    P_flat = jnp.concatenate([jnp.zeros((K, 1), s_km.dtype), jnp.cumsum(sc_km, axis=1)], axis=1).reshape(-1)
-    sc_flat = sc_km.reshape(-1)
-    cols = jnp.arange(K, dtype=jnp.int32)[None, :]
-    if leave_one_out:
-        # rank of row i's own demo G_i among the sorted demos (the first of its ties: removing any one of
-        # equal values leaves the same multiset)
-        p = _count_below_rows(s_km, G).astype(jnp.int32)
-        m_eff = M - 1
+        alpha, per_feature = solvers.exact(F, G, beta, amax, leave_one_out)
+    elif method == "optax":
+        if steps < 1 or not learning_rate > 0 or l2 < 0:
+            raise ValueError("optax needs steps >= 1, learning_rate > 0 and l2 >= 0")
+        alpha, per_feature = solvers.optax_adam(F, G, beta, amax, leave_one_out, float(l2), int(steps),
+                                                float(learning_rate))
     else:
-        p = jnp.full((N, K), M, jnp.int32)  # nothing removed
-        m_eff = M
-    sc_p = sc_flat[cols * M + jnp.minimum(p, M - 1)]  # shifted value of the removed demo (unused when none)
-
-    def prefix(m):  # sum of the m smallest remaining demos, shifted by center, m in [0, m_eff]
-        return jnp.where(m <= p, P_flat[cols * (M + 1) + m], P_flat[cols * (M + 1) + jnp.minimum(m + 1, M)] - sc_p)
-
-    def sorted_value(r):  # r-th smallest remaining demo
-        return s_flat[cols * M + jnp.minimum(r + (r >= p), M - 1)]
-
-    def count_below(t):  # number of remaining demos < t
-        c = _count_below_rows(s_km, t)
-        return c - (p < c)
-
-    # bisection for m* = min{m in [1, m_eff] : mean of the m smallest > x}; m_eff + 1 when no such m. The m-th
-    # smallest demo exceeding x is implied in exact arithmetic; requiring it too (an exact comparison) keeps
-    # the predicate monotone and the breakpoint's gap > 0 when rounding puts a running mean of ties above x.
-    lo = jnp.zeros((N, K), jnp.int32)
-    hi = jnp.full((N, K), m_eff + 1, jnp.int32)
-
-    def body(_, lohi):
-        lo, hi = lohi
-        mid = (lo + hi) // 2
-        m = jnp.clip(mid, 1, m_eff)
-        ok = (mid >= 1) & (mid <= m_eff) & (prefix(m) > m * xc) & (sorted_value(m - 1) > x)
-        return jnp.where(ok, lo, mid), jnp.where(ok, mid, hi)
-
-    lo, hi = jax.lax.fori_loop(0, math.ceil(math.log2(m_eff + 2)) + 1, body, (lo, hi))
-    has_breakpoint = hi <= m_eff
-    gap = sorted_value(jnp.clip(hi - 1, 0, m_eff - 1)) - x  # > 0 whenever has_breakpoint
-    alpha = jnp.where(has_breakpoint, beta / jnp.where(has_breakpoint, gap, 1.0), 0.0)
-    alpha = jnp.minimum(alpha, alpha_max)
-    per_feature = _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix)
+        raise ValueError(f"method must be 'exact' or 'optax', got {method!r}")
     return MinSubdominance(value=per_feature.sum(-1), alpha=alpha, per_feature=per_feature)
-
-
-def _count_below_rows(s_km, q):
-    """``[N, K]``: for each query ``q[i, k]``, the number of entries of sorted row ``s_km[k]`` below it."""
-    return jax.vmap(lambda row, col: jnp.searchsorted(row, col, side="left"), in_axes=(0, 1), out_axes=1)(s_km, q)
-
-
-def _sort_rows(a):
-    """Sorts each row of a float32 ``[K, M]`` ascending (NaN-free input).
-
-    Sorts the order-preserving integer image of the floats (flip the 31 low bits of negatives) and maps back:
-    XLA's CPU sort has a fast path for a single integer operand with a plain ``<`` comparator, ~8x faster
-    than ``jnp.sort``'s NaN-aware float comparator. Exact: the map is a bijection (an involution)."""
-    if a.dtype != jnp.float32:
-        return jnp.sort(a, axis=1)
-    flip = lambda i: i ^ ((i >> 31) & jnp.int32(0x7FFFFFFF))  # noqa: E731
-    keys = jax.lax.sort(flip(jax.lax.bitcast_convert_type(a, jnp.int32)), dimension=1)
-    return jax.lax.bitcast_convert_type(flip(keys), jnp.float32)
-
-
-def _g_sorted(alpha, x, xc, beta, m_eff, count_below, prefix):
-    """``g(alpha) = 1/M' sum_j [alpha (x - s_j) + beta]_+`` from sorted demos: the active demos are those
-    with ``s_j < x + beta / alpha``, so ``g = (alpha (c x - prefix(c)) + c beta) / M'`` with c their count
-    (computed with ``xc`` and ``prefix`` shifted alike)."""
-    safe = jnp.where(alpha > 0, alpha, 1.0)
-    c = jnp.where(alpha > 0, count_below(x + beta / safe), m_eff)
-    return jnp.maximum(alpha * (c * xc - prefix(c)) + c * beta, 0.0) / m_eff
-
-
-# ---------------------------------------------------------------------------------------------------------
-# optax solver
-# ---------------------------------------------------------------------------------------------------------
-
-
-def _optax(F, G, beta, alpha_max, leave_one_out, l2, steps, learning_rate, chunk_size):
-    N = F.shape[0]
-    chunk = min(chunk_size, N)
-    n_chunks = -(-N // chunk)
-    pad = n_chunks * chunk - N
-    Fp = jnp.pad(F, ((0, pad), (0, 0)))
-    alpha = _optax_chunks(Fp.reshape(n_chunks, chunk, -1), G, beta, alpha_max, leave_one_out, l2, steps,
-                          learning_rate)
-    alpha = alpha.reshape(n_chunks * chunk, -1)[:N]
-    per_feature = _mean_subdominance_per_feature(F, G, alpha, beta, leave_one_out, chunk)
-    return MinSubdominance(value=per_feature.sum(-1), alpha=alpha, per_feature=per_feature)
-
-
-@partial(jax.jit, static_argnames=("leave_one_out", "steps", "learning_rate"))
-def _optax_chunks(Fc, G, beta, alpha_max, leave_one_out, l2, steps, learning_rate):
-    """Projected Adam on ``a = alpha * std_k(G)`` for each chunk of rows ``Fc [C, n, K]`` in turn."""
-    n_chunks, n, K = Fc.shape
-    M = G.shape[0]
-    scale = jnp.std(G, axis=0) + 1e-8  # [K]
-    Gs = G / scale
-    # b2=0.9: with optax's default 0.999 the second moment remembers the large early gradients (many
-    # active hinges) and the steps shrink before alpha reaches large optima; 0.9 tracks the current slope.
-    opt = optax.adam(optax.cosine_decay_schedule(learning_rate, steps), b2=0.9)
-    a_max = alpha_max * scale
-
-    def solve(args):
-        ci, F = args
-        D = F[:, None, :] / scale - Gs[None]  # [n, M, K]
-        w = jnp.ones((n, M), F.dtype)
-        if leave_one_out:
-            w = w.at[jnp.arange(n), ci * n + jnp.arange(n)].set(0.0, mode="drop")
-        denom = jnp.sum(w, axis=1, keepdims=True)  # [n, 1]
-
-        def objective(a):  # sum over rows of each row's objective: separable, so gradients are per row
-            sub = jax.nn.relu(a[:, None, :] * D + beta)  # [n, M, K]
-            return jnp.sum(jnp.sum(sub * w[..., None], axis=1) / denom) + l2 * jnp.sum((a / scale) ** 2)
-
-        def step(carry, _):
-            a, state = carry
-            grads = jax.grad(objective)(a)
-            updates, state = opt.update(grads, state, a)
-            a = jnp.clip(optax.apply_updates(a, updates), 0.0, a_max)
-            return (a, state), None
-
-        a0 = jnp.zeros((n, K), F.dtype)
-        (a, _), _ = jax.lax.scan(step, (a0, opt.init(a0)), None, length=steps)
-        return a / scale
-
-    return jax.lax.map(solve, (jnp.arange(n_chunks), Fc))
-
-
-@partial(jax.jit, static_argnames=("leave_one_out", "chunk"))
-def _mean_subdominance_per_feature(F, G, alpha, beta, leave_one_out, chunk):
-    """``[N, K]``: 1/M' sum_j [alpha_ik (F_ik - G_jk) + beta_k]_+, computed ``chunk`` rows at a time."""
-    N, K = F.shape
-    M = G.shape[0]
-    n_chunks = -(-N // chunk)
-    pad = n_chunks * chunk - N
-    Fc = jnp.pad(F, ((0, pad), (0, 0))).reshape(n_chunks, chunk, K)
-    Ac = jnp.pad(alpha, ((0, pad), (0, 0))).reshape(n_chunks, chunk, K)
-
-    def one(args):
-        ci, f, a = args
-        sub = jax.nn.relu(a[:, None, :] * (f[:, None, :] - G[None]) + beta)  # [chunk, M, K]
-        total = sub.sum(1)
-        if leave_one_out:
-            own = jnp.clip(ci * chunk + jnp.arange(chunk), 0, M - 1)
-            total = total - jax.nn.relu(a * (f - G[own]) + beta)
-            return total / (M - 1)
-        return total / M
-
-    return jax.lax.map(one, (jnp.arange(n_chunks), Fc, Ac)).reshape(n_chunks * chunk, K)[:N]
 
 
 # ---------------------------------------------------------------------------------------------------------
