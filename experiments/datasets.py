@@ -17,7 +17,7 @@ import os
 import time
 
 from minsubdt_jax.behavior.policies import load_manifest
-from minsubdt_jax.data.generate import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary
+from minsubdt_jax.data.named import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary
 
 HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -59,7 +59,7 @@ def main():
             if os.path.exists(path):
                 os.remove(path)
             t0 = time.time()
-            data, _ = resolve_dataset(env, ds, transitions=a.transitions, seed=a.seed, verbose=False)
+            data = resolve_dataset(env, ds, transitions=a.transitions, seed=a.seed, verbose=False).data
             rows.append({"env": env, "dataset": ds, **summary(env, data), "seconds": time.time() - t0})
             r = rows[-1]
             print(f"{env:12s} {ds:14s} {r['episodes']:6d} {r['transitions']:8d} {r['return_mean']:8.1f} ± "

@@ -1,11 +1,25 @@
-"""Shared fixtures: one small MJX dataset per session (compiled once), written as a D4RL file."""
+"""Shared fixtures: one small MJX dataset per session (compiled once), written as a D4RL file; one persistent
+XLA compilation cache per session, shared by the tests and every subprocess they start, so a program the suite
+compiles twice (a resumed run, the same smoke model in another test, a CLI subprocess) compiles once. A fresh
+machine pays each distinct compile once; nothing outlives the session."""
 
+import atexit
 import os
+import shutil
+import tempfile
 
 import numpy as np
 import pytest
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+# Set before jax is imported (test modules import it after this file), so jax's config reads them at import.
+# The first process to load this file (the pytest-xdist controller, or pytest itself) makes the folder and removes
+# it at exit; xdist workers inherit it through the environment.
+if "MINSUBDT_TEST_XLA_CACHE" not in os.environ:
+    os.environ["MINSUBDT_TEST_XLA_CACHE"] = tempfile.mkdtemp(prefix="minsubdt-test-xla-")
+    atexit.register(shutil.rmtree, os.environ["MINSUBDT_TEST_XLA_CACHE"], ignore_errors=True)
+os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ["MINSUBDT_TEST_XLA_CACHE"]
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.3"
 
 ENV = "hopper"  # the cheapest MJX env to compile and step
 HORIZON = 60
@@ -30,11 +44,9 @@ def small_dataset_path(small_dataset, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def cli_env(tmp_path_factory):
-    """Environment for CLI subprocesses: a private cache and a shared persistent XLA compilation cache."""
+    """Environment for CLI subprocesses: a private dataset cache (the session's XLA cache is inherited)."""
     env = dict(os.environ)
     env["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg"))
-    env["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path_factory.mktemp("xla"))
-    env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
     return env
 
 

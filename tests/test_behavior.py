@@ -48,8 +48,10 @@ def test_snapshot_round_trip(tmp_path):
     jax.tree.map(np.testing.assert_array_equal, jax.device_get(params), loaded)
 
 
-TINY = dict(env="hopper", num_envs=4, batch_size=16, hidden=16, buffer_size=400, min_replay=100, chunk_steps=100,
-            eval_every=100, eval_episodes=2, episode_length=40)
+# hidden 256, 8 evaluation episodes of 1000 steps: the evaluation rollout is the very program that records a named
+# dataset from a committed policy (tests/test_generate.py), compiled once per session (make_rollout is cached)
+TINY = dict(env="hopper", num_envs=4, batch_size=16, hidden=256, buffer_size=400, min_replay=100, chunk_steps=100,
+            eval_every=100, eval_episodes=8, episode_length=1000)
 
 
 @pytest.mark.slow

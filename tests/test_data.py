@@ -52,11 +52,18 @@ def _write(path, arrays):
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda a: a.pop("timeouts"), r"missing keys \['timeouts'\]"),
+    (lambda a: a.pop("actions"), r"missing keys \['actions'\]"),
     (lambda a: a.update(rewards=a["rewards"][:-1]), "mismatched lengths"),
     (lambda a: a["observations"].__setitem__((2, 1), np.nan), r"non-finite .* 'observations' .* first \[2\]"),
     (lambda a: a["actions"].__setitem__((5, 0), np.inf), r"non-finite .* 'actions'"),
     (lambda a: [a.__setitem__(k, v[:0]) for k, v in list(a.items())], "empty"),
+    # finite in the file's float64, inf once in float32: refused, not trained on
+    (lambda a: a["observations"].__setitem__((4, 0), 1e39), r"beyond ±3.4e38\) at 1 rows, first \[4\]"),
+    # each reward fits float32, their sum over the episode does not
+    (lambda a: a["rewards"].__setitem__(slice(0, 2), 3e38), r"returns of 1 episodes overflow"),
+    (lambda a: a.update(terminals=np.where(np.arange(10) == 6, np.nan, a["terminals"].astype(float))),
+     r"'terminals' must be 0/1 .* first \[6\]"),
+    (lambda a: a.update(actions=np.array([[b"a", b"b"]] * 10)), "non-numeric arrays"),
 ])
 def test_bad_files_give_one_clear_error(tmp_path, mutate, message):
     a = _flat()
@@ -127,3 +134,140 @@ def test_generated_dataset_is_deterministic_and_valid(small_dataset):
     # random hopper falls over: terminations are recorded apart from time-outs
     assert small_dataset.terminals.any()
     assert np.all(small_dataset.terminals | (small_dataset.lengths == HORIZON))
+
+
+def test_v0_file_without_timeouts_infers_them_from_the_horizon(tmp_path):
+    """D4RL v0 files have no ``timeouts``: episodes end on a termination or every ``horizon`` steps."""
+    from minsubdt_jax.data import open_d4rl
+
+    a = _flat(n=25)
+    a["terminals"][:] = False
+    a["terminals"][3] = True
+    tout = np.zeros(25, bool)
+    tout[[13, 23]] = True  # what a v1 file would flag with a time limit of 10 steps
+    del a["timeouts"]
+    _write(tmp_path / "v0.hdf5", a)
+    f = open_d4rl(tmp_path / "v0.hdf5", horizon=10)
+    assert f.timeouts_inferred and f.data.lengths.tolist() == [4, 10, 10, 1]
+    assert f.data.terminals.tolist() == [True, False, False, False]
+    explicit = from_flat({**a, "timeouts": tout})
+    np.testing.assert_array_equal(f.data.observations, explicit.observations)
+    assert not open_d4rl(_save_small(tmp_path)).timeouts_inferred
+
+
+def _save_small(tmp_path, name="ours.hdf5", env="hopper"):
+    path = tmp_path / name
+    save_d4rl(from_flat(_flat(n=40)), path, infos={"x": np.arange(40.0)}, env=env)
+    return path
+
+
+def test_checksum_catches_changed_contents(tmp_path):
+    from minsubdt_jax.data import open_d4rl, read_infos
+
+    path = _save_small(tmp_path)
+    f = open_d4rl(path)
+    assert f.env == "hopper" and f.sha256 == f.data.sha256() and len(f.sha256) == 64
+    with h5py.File(path, "r+") as h:
+        h["actions"][5] = 0.0  # what HDF5 returns for a lost chunk
+    with pytest.raises(DatasetError, match="damaged: its contents do not match the checksum"):
+        load_d4rl(path)
+    path = _save_small(tmp_path, "infos.hdf5")
+    with h5py.File(path, "r+") as h:
+        h["infos/x"][3] = 0.0
+    load_d4rl(path)  # the episodes are intact
+    with pytest.raises(DatasetError, match="infos do not match"):
+        read_infos(path)
+
+
+def test_zeroed_blocks_never_load_silently_wrong(tmp_path):
+    """Zero each 4 KB block of a written file in turn (what a lost disk block does): every load either returns
+    the very same data or fails with one DatasetError, never another exception or other data."""
+    src = tmp_path / "src.hdf5"
+    data = from_flat(_flat(n=3000, obs=11, act=3))
+    save_d4rl(data, src)
+    raw = src.read_bytes()
+    outcomes = {"same": 0, "error": 0}
+    for off in range(0, len(raw), 4096):
+        bad = tmp_path / "bad.hdf5"
+        bad.write_bytes(raw[:off] + bytes(min(4096, len(raw) - off)) + raw[off + 4096:])
+        try:
+            got = load_d4rl(bad)
+        except DatasetError:
+            outcomes["error"] += 1
+            continue
+        assert got.sha256() == data.sha256(), f"block at {off} changed the data without an error"
+        outcomes["same"] += 1
+    assert outcomes["error"] > 0 and sum(outcomes.values()) == -(-len(raw) // 4096), outcomes
+
+
+def test_data_must_fit_the_env(tmp_path, small_dataset_path):
+    """hopper data as walker (shapes), walker-like data as halfcheetah (same shapes, other reset state), and a
+    file recorded in another env: each one DatasetError naming the likely env."""
+    with pytest.raises(DatasetError, match="size 11 and actions of size 3; walker has 17 and 6.*fits hopper"):
+        resolve_dataset("walker", small_dataset_path)
+    a = _flat(n=40, obs=17, act=6)
+    a["observations"][:, 0] = 1.25  # a walker's torso height at reset (halfcheetah's obs[0] starts at 0)
+    _write(tmp_path / "w.hdf5", a)
+    assert resolve_dataset("walker", str(tmp_path / "w.hdf5")).data.obs_dim == 17
+    with pytest.raises(DatasetError, match="a walker reset state .* is it a walker dataset"):
+        resolve_dataset("halfcheetah", str(tmp_path / "w.hdf5"))
+    path = _save_small(tmp_path, "rec.hdf5", env="halfcheetah")
+    with pytest.raises(DatasetError, match="recorded in halfcheetah, not in hopper"):
+        resolve_dataset("hopper", str(path))
+
+
+RACE = """
+import sys, time, numpy as np
+from minsubdt_jax.data import named
+from minsubdt_jax.data.dataset import from_padded
+
+def slow_generate(env, dataset, transitions, horizon, seed, verbose):
+    with open(sys.argv[1], "a") as f:
+        f.write("recorded\\n")
+    rng = np.random.default_rng(seed)
+    obs = rng.normal(size=(400, 50, 11)).astype(np.float32)
+    obs[:, 0, 0] = 1.25
+    time.sleep(1.0)  # long enough for the other process to arrive while this one records
+    data = from_padded(obs, rng.uniform(-1, 1, (400, 50, 3)), rng.normal(size=(400, 50)), np.full(400, 50), np.zeros(400))
+    return data, {"qpos": np.zeros((data.num_transitions, 6))}
+
+named.generate = slow_generate
+f = named.resolve_dataset("hopper", "medium", transitions=20000, horizon=50, verbose=False)
+print(f.sha256, f.data.num_trajectories)
+"""
+
+
+def test_concurrent_recordings_of_one_dataset_record_it_once(tmp_path):
+    """Two processes ask for the same uncached dataset at once: one records it, the other waits for the lock and
+    loads the finished file; both get the same data and the cache holds one valid file."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path / "cache"), JAX_PLATFORMS="cpu")
+    log = tmp_path / "log"
+    procs = [subprocess.Popen([sys.executable, "-c", RACE, str(log)], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    for p, (o, e) in zip(procs, outs):
+        assert p.returncode == 0, e[-3000:]
+    assert outs[0][0] == outs[1][0] and outs[0][0].split()[1] == "400"
+    assert log.read_text().count("recorded") == 1
+    files = os.listdir(tmp_path / "cache" / "minsubdt_jax" / "datasets")
+    assert sorted(files) == ["hopper-medium-t20000-h50-s0.hdf5", "hopper-medium-t20000-h50-s0.hdf5.lock"]
+    assert load_d4rl(tmp_path / "cache" / "minsubdt_jax" / "datasets" / files[0]).sha256() == outs[0][0].split()[0]
+
+
+def test_damaged_cache_file_names_the_file_and_force(tmp_path, monkeypatch):
+    from minsubdt_jax.data.named import dataset_path
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    path = dataset_path("hopper", "medium", 2000, 60, 0)
+    import os
+
+    os.makedirs(os.path.dirname(path))
+    with open(path, "wb") as f:
+        f.write(b"\0" * 4096)
+    with pytest.raises(DatasetError, match=r"hopper-medium-t2000-h60-s0.hdf5: not a readable hdf5 file .* cached "
+                                           r"recording: .*--dataset medium --force"):
+        resolve_dataset("hopper", "medium", transitions=2000, horizon=60)

@@ -27,7 +27,7 @@ def recorded(cache):
 
 
 def test_generation_is_deterministic_for_a_seed(recorded):
-    medium, _ = recorded["medium"]
+    medium = recorded["medium"].data
     again, _ = generate("hopper", "medium", **SMALL, seed=0, verbose=False)
     other, _ = generate("hopper", "medium", **SMALL, seed=1, verbose=False)
     for name in ("observations", "actions", "rewards", "lengths", "terminals"):
@@ -36,7 +36,8 @@ def test_generation_is_deterministic_for_a_seed(recorded):
 
 
 def test_datasets_reach_the_requested_size_in_whole_episodes(recorded):
-    for name, (data, _) in recorded.items():
+    for name, f in recorded.items():
+        data = f.data
         assert data.num_transitions >= 2000, name
         assert data.num_transitions - data.lengths[-1] < 2000, name  # the last episode crossed the target
         assert data.max_len <= 1000
@@ -45,7 +46,7 @@ def test_datasets_reach_the_requested_size_in_whole_episodes(recorded):
 
 
 def test_medium_is_between_random_and_expert(recorded):
-    r = {d: recorded[d][0].returns.mean() for d in recorded}
+    r = {d: recorded[d].data.returns.mean() for d in recorded}
     assert r["random"] < r["medium"] < r["expert"], r
     lo, hi = reference_returns("hopper")
     refs = load_manifest("hopper")["references"]
@@ -54,10 +55,16 @@ def test_medium_is_between_random_and_expert(recorded):
 
 
 def test_medium_expert_file_is_medium_and_expert_in_d4rl_layout(recorded):
-    data, path = resolve_dataset("hopper", "medium-expert", **SMALL, verbose=False)
-    medium, expert = recorded["medium"][0], recorded["expert"][0]
+    me = resolve_dataset("hopper", "medium-expert", **SMALL, verbose=False)
+    data, path = me.data, me.path
+    medium, expert = recorded["medium"].data, recorded["expert"].data
     assert data.num_trajectories == medium.num_trajectories + expert.num_trajectories
-    np.testing.assert_array_equal(data.returns, np.concatenate([medium.returns, expert.returns]))
+    # per-step rewards, exactly (returns are float32 sums, which may round differently over other padding)
+    T = data.max_len
+    pad = lambda r: np.pad(r, ((0, 0), (0, T - r.shape[1])))  # noqa: E731
+    np.testing.assert_array_equal(data.rewards, np.concatenate([pad(medium.rewards), pad(expert.rewards)]))
+    np.testing.assert_allclose(data.returns, np.concatenate([medium.returns, expert.returns]), rtol=1e-6)
+    assert me.env == "hopper" and me.sha256 == load_d4rl(path).sha256() != recorded["medium"].sha256
     loaded = load_d4rl(path)
     np.testing.assert_array_equal(loaded.lengths, data.lengths)
     with h5py.File(path) as f:

@@ -96,12 +96,13 @@ def test_existing_run_needs_resume(full_run, small_dataset_path, cli_env):
 
 
 def test_named_dataset_is_recorded_on_first_use_then_reused(tmp_path, cli_env):
-    """``--dataset medium`` records hopper medium from the committed policy into the cache, once."""
-    args = [*SMOKE, "--dataset", "medium", "--steps", "10", "--eval-episodes", "0"]
+    """``--dataset medium`` records hopper medium from the committed policy into the cache, once. (The horizon is
+    the default 1000, so the recording program is test_generate's, from the session's compilation cache.)"""
+    args = [*SMOKE, "--episode-length", "1000", "--dataset", "medium", "--steps", "10", "--eval-episodes", "0"]
     p = _run([*args, "--out", str(tmp_path / "a")], cli_env)
     assert "hopper/medium:" in p.stdout and "transitions" in p.stdout  # the recording summary
     res = json.loads((tmp_path / "a" / "results.json").read_text())["dataset"]
-    assert res["path"].startswith(cli_env["XDG_CACHE_HOME"]) and "hopper-medium-t2000-h60-s0" in res["path"]
+    assert res["path"].startswith(cli_env["XDG_CACHE_HOME"]) and "hopper-medium-t2000-h1000-s0" in res["path"]
     assert res["transitions"] >= 2000 and os.path.exists(res["path"])
     p = _run([*args, "--out", str(tmp_path / "b")], cli_env)
     assert "hopper/medium:" not in p.stdout  # loaded from the cache, not recorded again
@@ -126,3 +127,92 @@ def test_learned_costs_and_behaviour_cloning_runs(tmp_path, small_dataset_path):
     ev = res["eval"]
     assert np.isfinite(ev["learned_min_subdominance_mean"]) and 0 <= ev["better_than_mean_demo_share"] <= 1
     assert len(ev["costs"]) == 2 and len(res["dataset"]["costs_sample"]) == 32
+
+
+def _main(args, capsys):
+    """The CLI in this process (no interpreter start-up): (exit code, stderr)."""
+    from minsubdt_jax.train import main
+
+    code = main(args)
+    return code, capsys.readouterr().err
+
+
+def _listing(path):
+    return sorted(str(p.relative_to(path)) for p in path.rglob("*")) if path.exists() else None
+
+
+def test_data_that_cannot_be_trained_on_stops_before_anything_is_written(tmp_path, small_dataset_path, capsys):
+    """Wrong env for the data, one episode, values that overflow float32: one error line, exit 2, no run dir."""
+    import h5py
+
+    out = tmp_path / "never"
+    code, err = _main([*SMOKE, "--env", "walker", "--dataset", small_dataset_path, "--out", str(out)], capsys)
+    assert code == 2 and err.count("error:") == 1 and "walker has 17 and 6" in err and not out.exists()
+    with h5py.File(small_dataset_path) as f:
+        flat = {k: f[k][()] for k in ("observations", "actions", "rewards", "terminals", "timeouts")}
+    first = int(np.argmax(flat["terminals"] | flat["timeouts"])) + 1
+    cases = {
+        "one.hdf5": ({k: v[:first] for k, v in flat.items()}, "has 1 episode; min-subdominance"),
+        # finite in float64, inf in float32: the file passes a NaN/inf check done before the conversion
+        "big.hdf5": ({**flat, "observations": np.where(np.arange(len(flat["rewards"]))[:, None] == 7, 1e39,
+                                                       flat["observations"].astype(np.float64))}, "beyond ±3.4e38"),
+    }
+    for name, (arrays, message) in cases.items():
+        with h5py.File(tmp_path / name, "w") as f:
+            for k, v in arrays.items():
+                f.create_dataset(k, data=v)
+        code, err = _main([*SMOKE, "--dataset", str(tmp_path / name), "--out", str(out)], capsys)
+        assert code == 2 and err.count("error:") == 1 and message in err and "Traceback" not in err, err
+        assert not out.exists()
+
+
+def test_bad_out_is_refused_before_the_dataset_is_recorded(tmp_path, cli_env, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    (tmp_path / "afile").write_text("x")
+    named = [*SMOKE, "--dataset", "medium"]  # would record hopper medium into the (empty) cache first
+    for out, message in [(tmp_path / "afile", "is a file, not a directory"),
+                         (tmp_path / "afile" / "run", "is a file, not a directory"),
+                         ("/proc/minsubdt-run", "cannot write in /proc")]:
+        code, err = _main([*named, "--out", str(out)], capsys)
+        assert code == 2 and message in err and "Traceback" not in err, err
+    assert not (tmp_path / "cache").exists()  # nothing recorded
+
+
+def test_diverging_training_stops_with_an_error_and_no_results(tmp_path, small_dataset_path, capsys):
+    out = tmp_path / "nan"
+    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--learning-rate", "1e30"], capsys)
+    assert code == 2 and "training diverged: non-finite loss" in err and "Traceback" not in err
+    assert not (out / "results.json").exists() and not (out / "metrics.jsonl").exists()
+    assert not any(d.isdigit() for d in os.listdir(out / "checkpoints"))
+
+
+def test_resume_refuses_fewer_steps_and_other_data_and_survives_a_torn_log(tmp_path, small_dataset_path, capsys):
+    import shutil
+
+    data = tmp_path / "data.hdf5"
+    shutil.copy(small_dataset_path, data)
+    out = tmp_path / "run"
+    common = [*SMOKE, "--dataset", str(data), "--out", str(out), "--eval-episodes", "0"]
+    assert _main(common, capsys)[0] == 0  # 20 steps
+    before = {n: (out / n).read_bytes() for n in ("config.json", "dataset.json", "metrics.jsonl")}
+    code, err = _main([*common, "--steps", "10", "--resume"], capsys)
+    assert code == 2 and "--steps 10 is below the run's last checkpoint, step 20" in err
+    # the same path, other contents (one action changed)
+    from minsubdt_jax.data import load_d4rl, save_d4rl
+    from minsubdt_jax.data.dataset import Trajectories
+
+    d = load_d4rl(data)
+    actions = d.actions.copy()
+    actions[0, 0, 0] += 0.5
+    save_d4rl(Trajectories(d.observations, actions, d.rewards, d.lengths, d.terminals), data)
+    code, err = _main([*common, "--steps", "30", "--resume"], capsys)
+    assert code == 2 and "the dataset differs from the one the run started on" in err
+    assert {n: (out / n).read_bytes() for n in before} == before  # refusals change nothing
+    shutil.copy(small_dataset_path, data)
+    # a kill while a metrics line was being written leaves half a line: resume drops it, keeps the rest
+    with open(out / "metrics.jsonl", "a") as f:
+        f.write('{"step": 30, "loss": 0.')
+    assert _main([*common, "--steps", "30", "--resume"], capsys)[0] == 0
+    steps = [json.loads(ln)["step"] for ln in (out / "metrics.jsonl").read_text().splitlines()]
+    assert steps == [10, 20, 30]
+    assert json.loads((out / "config.json").read_text())["steps"] == 30

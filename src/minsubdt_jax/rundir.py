@@ -1,39 +1,116 @@
-"""Helpers shared by the command-line programs: resume checks, metric-log truncation, progress bar, and one
-clear ``error:`` line (exit 2) for bad input."""
+"""Helpers shared by the command-line programs: run-directory checks before anything is written, resume checks,
+atomic writes, metric-log truncation, progress bar, and one clear ``error:`` line (exit 2) for bad input."""
 
 from __future__ import annotations
 
 import json
 import os
 import sys
+import tempfile
 from typing import Callable
+
+DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 
 
 def check_run_dir(config: dict, out: str, ckpt_dir: str, resume: bool, resumable: tuple[str, ...]) -> None:
-    """Refuse to overwrite a run's checkpoints without ``--resume``, and to resume a run whose saved
-    ``config.json`` differs from ``config`` in any field outside ``resumable``."""
+    """Before anything is written or recorded: ``out`` must be a directory we can create and write in; refuse to
+    overwrite a run's checkpoints without ``--resume``; refuse to resume a run whose saved ``config.json``
+    differs from ``config`` in any field outside ``resumable``, or to a ``steps`` below its last checkpoint."""
+    check_writable_dir(out)
     cfg_path = os.path.join(out, "config.json")
-    has_ckpt = os.path.isdir(ckpt_dir) and any(d.isdigit() for d in os.listdir(ckpt_dir))
+    steps = checkpoint_steps(ckpt_dir)
     if resume:
-        if not os.path.exists(cfg_path) or not has_ckpt:
+        if not os.path.exists(cfg_path) or not steps:
             raise ValueError(f"--resume: no checkpoint in {out}")
         with open(cfg_path) as f:
             old = json.load(f)
         diff = {k: (old.get(k), v) for k, v in config.items() if k not in resumable and old.get(k) != v}
         if diff:
             raise ValueError(f"--resume: config differs from the checkpointed run in {diff} (old, new)")
-    elif has_ckpt:
+        if "steps" in config and config["steps"] < max(steps):
+            raise ValueError(f"--resume: --steps {config['steps']} is below the run's last checkpoint, step "
+                             f"{max(steps)}; give --steps {max(steps)} or more")
+    elif steps:
         raise ValueError(f"{out} already holds checkpoints: pass --resume to continue, or another --out")
 
 
+def check_same_data(out: str, sha256: str, resume: bool) -> None:
+    """On resume, the data must be the data the run started on (its content hash in ``dataset.json``)."""
+    if not resume:
+        return
+    path = os.path.join(out, DATASET_FILE)
+    if not os.path.exists(path):
+        raise ValueError(f"--resume: {out} records no dataset hash ({DATASET_FILE}; written by an older version), "
+                         f"so resuming on the same data cannot be checked: start a new run")
+    with open(path) as f:
+        old = json.load(f)["sha256"]
+    if old != sha256:
+        raise ValueError(f"--resume: the dataset differs from the one the run started on (sha256 {old[:12]}…, now "
+                         f"{sha256[:12]}…)")
+
+
+def checkpoint_steps(ckpt_dir: str) -> list[int]:
+    """Steps of the checkpoints in ``ckpt_dir`` (orbax writes one numbered folder each)."""
+    if not os.path.isdir(ckpt_dir):
+        return []
+    return [int(d) for d in os.listdir(ckpt_dir) if d.isdigit()]
+
+
+def check_writable_dir(out: str) -> None:
+    """``out`` is, or can be made, a directory we can write in: checked by creating (and removing) a temporary
+    directory in it or in its nearest existing ancestor, which changes nothing."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out} is a file, not a directory")
+    parent = os.path.abspath(out)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise ValueError(f"--out {out}: {parent} is a file, not a directory")
+    try:
+        os.rmdir(tempfile.mkdtemp(dir=parent, prefix=".write-check-"))
+    except OSError as e:
+        raise ValueError(f"--out {out}: cannot write in {parent} ({e.strerror or e})") from None
+
+
+def write_atomic(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: a reader or a kill never sees half."""
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=os.path.basename(path) + ".",
+                               suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def read_metrics(path: str) -> list[dict]:
+    """The records of a ``metrics.jsonl``; a torn last line (a kill while it was written) is dropped, a damaged
+    line before it is an error."""
+    if not os.path.exists(path):
+        return []
+    with open(path) as f:
+        lines = [ln for ln in f.read().split("\n") if ln.strip()]
+    rows = []
+    for i, ln in enumerate(lines):
+        try:
+            rows.append(json.loads(ln))
+        except json.JSONDecodeError as e:
+            if i == len(lines) - 1:
+                break
+            raise ValueError(f"{path}: line {i + 1} is not JSON ({e}); the log is damaged") from None
+    return rows
+
+
 def truncate_metrics(path: str, step: int) -> None:
-    """Drop metric lines past ``step`` (written after the checkpoint a resumed run restarts from)."""
+    """Drop metric lines past ``step`` (written after the checkpoint a resumed run restarts from), and a torn last
+    line; the log is replaced atomically."""
     if not os.path.exists(path):
         return
-    with open(path) as f:
-        lines = [ln for ln in f if ln.strip() and json.loads(ln)["step"] <= step]
-    with open(path, "w") as f:
-        f.writelines(lines)
+    rows = [r for r in read_metrics(path) if r["step"] <= step]
+    write_atomic(path, "".join(json.dumps(r) + "\n" for r in rows))
 
 
 def progress(total: int, initial: int, disable: bool, unit: str = "step"):

@@ -37,6 +37,7 @@ import optax
 import orbax.checkpoint as ocp
 from flax import struct
 
+from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
 from .costs import engineered_costs, engineered_spec, spearman
 from .data import resolve_dataset, sample_batch, sampler_data
@@ -47,7 +48,8 @@ from .learned_costs import LearnedCostConfig, train_learned_costs
 from .model import DecisionTransformer
 from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh, replicate,
                        shard_batch)
-from .rundir import check_run_dir, exit_code, progress, truncate_metrics
+from .rundir import (DATASET_FILE, check_run_dir, check_same_data, exit_code, progress, truncate_metrics,
+                     write_atomic)
 from .subdominance import min_subdominance, returns_to_go, surrogate_rewards
 
 # Fields that may differ between a run and its resumption.
@@ -136,13 +138,21 @@ def make_train_chunk(model: DecisionTransformer, tx, cfg: Config, n_steps: int, 
 
 def prepare(cfg: Config, verbose: bool = True) -> dict:
     """Dataset -> cost features -> min-subdominance -> (surrogate) returns-to-go -> sampler arrays."""
-    dataset, path = resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions,
-                                    horizon=cfg.episode_length, seed=cfg.dataset_seed, verbose=verbose)
+    source = resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions, horizon=cfg.episode_length,
+                             seed=cfg.dataset_seed, verbose=verbose)
+    dataset, path = source.data, source.path
     if dataset.max_len > cfg.episode_length:
         raise ValueError(f"the dataset has episodes of {dataset.max_len} steps, longer than --episode-length "
                          f"{cfg.episode_length}")
+    if dataset.num_trajectories < 2:
+        raise ValueError(f"{path}: the dataset has {dataset.num_trajectories} episode; min-subdominance scores each "
+                         f"demonstration against the others and needs at least 2")
     costs = np.asarray(engineered_costs(cfg.env, dataset.observations, dataset.lengths, cfg.episode_length))
-    mean, std = dataset.state_stats()
+    with np.errstate(over="ignore", invalid="ignore"):
+        mean, std = dataset.state_stats()
+    if not (np.isfinite(mean).all() and np.isfinite(std).all()):
+        raise ValueError(f"{path}: the observations' mean or standard deviation overflows float32; the states "
+                         f"cannot be normalised")
     learned = None
     if cfg.returns == "learned":
         lc_cfg = LearnedCostConfig(cost_dim=cfg.cost_dim, steps=cfg.cost_steps, pairs_per_step=cfg.cost_pairs,
@@ -167,8 +177,11 @@ def prepare(cfg: Config, verbose: bool = True) -> dict:
         rewards = np.zeros_like(dataset.rewards)
         rtg_scale, target = 1.0, 0.0
     rtg = np.asarray(returns_to_go(rewards, dataset.lengths)) / rtg_scale
+    if not np.isfinite(rtg).all():
+        raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
     summary = {
-        "path": path, "episodes": dataset.num_trajectories, "transitions": dataset.num_transitions,
+        "path": path, "sha256": source.sha256, "timeouts_inferred": source.timeouts_inferred,
+        "episodes": dataset.num_trajectories, "transitions": dataset.num_transitions,
         "return_mean": float(dataset.returns.mean()), "return_std": float(dataset.returns.std()),
         "normalized_score_mean": float(normalized_score(cfg.env, dataset.returns).mean()),
         "costs_mean": dict(zip(engineered_spec(cfg.env).names, map(float, costs.mean(0)))),
@@ -216,10 +229,12 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
     data = datas[0] if len(datas) == 1 else jax.tree.map(lambda *x: jnp.stack(x), *datas)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
                                  "the training data (every process must load the same dataset)")
+    check_same_data(out, preps[0]["summary"]["sha256"], resume)
     if main:
         os.makedirs(out, exist_ok=True)
-        with open(os.path.join(out, "config.json"), "w") as f:
-            f.write(cfg.to_json())
+        write_atomic(os.path.join(out, "config.json"), cfg.to_json())
+        write_atomic(os.path.join(out, DATASET_FILE), json.dumps(
+            {k: preps[0]["summary"][k] for k in ("path", "sha256", "episodes", "transitions")}, indent=2))
     dataset = preps[0]["dataset"]
     model = make_model(cfg, dataset.act_dim, max(cfg.episode_length, dataset.max_len))
     tx = make_optimizer(cfg)
@@ -250,6 +265,10 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
         tc = time.time()
         state, losses = chunks[n](state, data)
         per_seed = np.asarray(gather(losses)).mean(0)  # [S]
+        if not np.isfinite(per_seed).all():
+            last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
+            raise ValueError(f"training diverged: non-finite loss {per_seed.tolist()} in steps {step + 1}-{step + n} "
+                             f"(not checkpointed; {last}); try a lower --learning-rate")
         step += n
         if main:
             with open(metrics_path, "a") as f:
@@ -281,8 +300,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True) -> dict:
                   f"({REFERENCE_SOURCE}), min-subdominance {e['min_subdominance_mean']:.3f} "
                   f"(dataset {preps[0]['summary']['min_subdominance_mean']:.3f})")
     if main:
-        with open(os.path.join(out, "results.json"), "w") as f:
-            json.dump(results, f, indent=2)
+        write_atomic(os.path.join(out, "results.json"), json.dumps(results, indent=2))
         plot_learning_curve(metrics_path, os.path.join(out, "learning_curve.png"))
     if verbose:
         print(f"wrote {out}/results.json", flush=True)
@@ -342,6 +360,7 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
 
 
 def main(argv=None) -> int:
+    enable_compilation_cache()
     return exit_code(lambda: train(*parse_args(argv)))
 
 

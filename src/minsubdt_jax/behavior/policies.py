@@ -28,6 +28,7 @@ import sys
 import jax
 import numpy as np
 
+from ..caches import enable_compilation_cache
 from ..rundir import exit_code
 from ..envs import ENVS, env_spec, make_rollout, random_policy
 from .networks import policy_step
@@ -158,6 +159,7 @@ def main(argv=None) -> int:
     p.add_argument("--replay", type=int, default=8)
     p.add_argument("--reference-episodes", type=int, default=100)
     a = p.parse_args(argv)
+    enable_compilation_cache()
     return exit_code(lambda: export(a.env, a.run, a.medium_ratio, a.replay, a.reference_episodes))
 
 

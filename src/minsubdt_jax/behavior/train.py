@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import sys
@@ -33,6 +34,7 @@ import optax
 import orbax.checkpoint as ocp
 from flax import struct, traverse_util
 
+from ..caches import enable_compilation_cache
 from ..config import add_flags
 from ..envs import ENVS, env_spec, make_env, make_rollout
 from ..rundir import check_run_dir, exit_code, progress, truncate_metrics
@@ -168,15 +170,14 @@ class SAC:
         return state, {"critic_loss": c_loss, "actor_loss": a_loss, "alpha": jnp.exp(log_alpha),
                        "entropy": -jnp.mean(logp)}
 
-    def env_step(self, state: SACState, env_state, explore: bool):
-        """Step every env once (uniform actions if ``explore``, else the stochastic actor), store the
-        transitions, reset ended episodes. Returns ``(state, env_state, (completed return sum, count))``."""
+    def env_step(self, state: SACState, env_state, explore):
+        """Step every env once (uniform actions if ``explore``, a traced bool, else the stochastic actor), store
+        the transitions, reset ended episodes. Returns ``(state, env_state, (completed return sum, count))``."""
         cfg, n = self.cfg, self.cfg.num_envs
         rng, k_act, k_reset = jax.random.split(state.rng, 3)
-        if explore:
-            action = jax.random.uniform(k_act, (n, self.spec.act_dim), minval=-1.0, maxval=1.0)
-        else:
-            action, _ = sample_tanh_gaussian(*self.actor.apply(state.actor_params, env_state.obs), k_act)
+        uniform = jax.random.uniform(k_act, (n, self.spec.act_dim), minval=-1.0, maxval=1.0)
+        sampled, _ = sample_tanh_gaussian(*self.actor.apply(state.actor_params, env_state.obs), k_act)
+        action = jnp.where(explore, uniform, sampled)
         nstate = jax.vmap(self.env.step)(env_state, action)
         terminal = nstate.done > 0
         ep_len = state.episode_len + 1
@@ -196,29 +197,32 @@ class SAC:
                               episode_len=jnp.where(ended, 0, ep_len), rng=rng)
         return state, env_state, (jnp.sum(jnp.where(ended, ep_ret, 0.0)), jnp.sum(ended))
 
-    def chunk(self, explore: bool):
-        """Jitted ``chunk(state, env_state) -> (state, env_state, metrics)`` over ``chunk_steps`` env steps;
-        no gradient updates while ``explore`` (the random-action warm-up)."""
-        key = (dataclasses.replace(self.cfg, steps=1, out=None), explore)  # what the program depends on
+    def chunk(self):
+        """Jitted ``chunk(state, env_state, explore) -> (state, env_state, metrics)`` over ``chunk_steps`` env
+        steps; no gradient updates while ``explore`` (the random-action warm-up; a traced flag, so both phases
+        run the one compiled program)."""
+        key = dataclasses.replace(self.cfg, steps=1, out=None)  # what the program depends on
         if key in _CHUNKS:
             return _CHUNKS[key]
         cfg = self.cfg
         n_updates = cfg.num_envs * cfg.updates_per_transition
 
-        def iteration(carry, _):
+        def learn(state):
+            rng, k = jax.random.split(state.rng)
+            state, info = jax.lax.scan(self.update, state.replace(rng=rng), jax.random.split(k, n_updates))
+            return state, jax.tree.map(jnp.mean, info)
+
+        def iteration(carry, _, explore):
             state, env_state = carry
             state, env_state, (ret_sum, count) = self.env_step(state, env_state, explore)
-            if explore:
-                info = {}
-            else:
-                rng, k = jax.random.split(state.rng)
-                state, info = jax.lax.scan(self.update, state.replace(rng=rng), jax.random.split(k, n_updates))
-                info = jax.tree.map(jnp.mean, info)
+            info_shape = jax.eval_shape(learn, state)[1]
+            state, info = jax.lax.cond(explore, lambda s: (s, jax.tree.map(jnp.zeros_like, info_shape)), learn, state)
             return (state, env_state), (ret_sum, count, info)
 
-        def chunk(state, env_state):
+        def chunk(state, env_state, explore):
             (state, env_state), (ret_sum, count, info) = jax.lax.scan(
-                iteration, (state, env_state), None, length=cfg.chunk_steps // cfg.num_envs)
+                functools.partial(iteration, explore=explore), (state, env_state), None,
+                length=cfg.chunk_steps // cfg.num_envs)
             metrics = jax.tree.map(jnp.mean, info)
             metrics["train_return_sum"], metrics["train_episodes"] = jnp.sum(ret_sum), jnp.sum(count)
             return state, env_state, metrics
@@ -266,7 +270,10 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     state, env_state = sac.init(jax.random.PRNGKey(cfg.seed))
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=1, create=True))
     if resume:
-        state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
+        # orbax gives committed arrays, fresh ones are not, and that is part of a program's compile key: through the
+        # host, so the resumed run reuses the compiled programs (persistent compilation cache) of the first one
+        restored = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
+        state = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)), restored)
         env_state = sac.reset_envs(jax.random.fold_in(state.rng, 1))
         if verbose:
             print(f"resumed from env step {int(state.env_steps)}", flush=True)
@@ -279,8 +286,9 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     while int(state.env_steps) < cfg.steps:
         t0 = time.time()
         explore = int(state.env_steps) < cfg.min_replay
-        state, env_state, m = sac.chunk(explore)(state, env_state)
-        m = {k: float(v) for k, v in jax.device_get(m).items()}
+        state, env_state, m = sac.chunk()(state, env_state, jnp.asarray(explore))
+        m = {k: float(v) for k, v in jax.device_get(m).items()
+             if not explore or k.startswith("train_")}  # no update metrics in the warm-up: there were no updates
         state = state.replace(wall_seconds=state.wall_seconds + (time.time() - t0))
         step = int(state.env_steps)
         if m["train_episodes"]:
@@ -323,6 +331,7 @@ def parse_args(argv=None) -> tuple[SACConfig, bool]:
 
 
 def main(argv=None) -> int:
+    enable_compilation_cache()
     return exit_code(lambda: train(*parse_args(argv)))
 
 

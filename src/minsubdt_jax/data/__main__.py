@@ -7,10 +7,11 @@ import os
 import sys
 import time
 
+from ..caches import enable_compilation_cache
 from ..envs import ENVS
 from ..rundir import exit_code
 from .dataset import DatasetError
-from .generate import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary_line
+from .named import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary_line
 
 
 def main(argv=None) -> int:
@@ -25,6 +26,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--force", action="store_true", help="record again even if the cache holds the file")
     a = p.parse_args(argv)
+    enable_compilation_cache()
     return exit_code(lambda: record(a.env, a.dataset, a.transitions, a.horizon, a.seed, a.force))
 
 
@@ -36,9 +38,9 @@ def record(env: str, dataset: str, transitions: int, horizon: int, seed: int, fo
         os.remove(path)
     cached = os.path.exists(path)
     t0 = time.time()
-    data, path = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed)
+    f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed)
     if cached:
-        print(summary_line(env, dataset, data, time.time() - t0) + f" (cached: {path})")
+        print(summary_line(env, dataset, f.data, time.time() - t0) + f" (cached: {f.path})")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,11 @@ class Trajectories:
         x = self.observations[self.valid_mask()]
         return x.mean(0).astype(np.float32), np.maximum(x.std(0), eps).astype(np.float32)
 
+    def sha256(self) -> str:
+        """Content hash of the episodes (their D4RL flat arrays: names, dtypes, shapes and bytes): the identity
+        of a dataset that runs record and resumes compare, and the checksum our hdf5 files carry."""
+        return checksum(self.to_flat())
+
     def to_flat(self) -> dict[str, np.ndarray]:
         """D4RL flat layout: ``observations, actions, rewards, terminals, timeouts`` over all real steps."""
         m = self.valid_mask()
@@ -80,18 +86,43 @@ class Trajectories:
 REQUIRED_KEYS = ("observations", "actions", "rewards", "terminals", "timeouts")
 
 
+def checksum(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 over ``arrays`` in key order: each key's name, dtype, shape and bytes."""
+    h = hashlib.sha256()
+    for k in sorted(arrays):
+        a = np.ascontiguousarray(arrays[k])
+        h.update(f"{k}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.data)
+    return h.hexdigest()
+
+
+def infer_timeouts(terminals, horizon: int) -> np.ndarray:
+    """Time-outs for a D4RL v0 file, which has ``terminals`` only: every ``horizon``-th step of a run of steps
+    without termination (the env's time limit), counted from the last termination."""
+    terminals = np.asarray(terminals).astype(bool)
+    if horizon < 1:
+        raise DatasetError(f"the horizon must be >= 1 to infer time-outs, got {horizon}")
+    n = len(terminals)
+    start = np.maximum.accumulate(np.where(np.r_[True, terminals[:-1]], np.arange(n), 0))  # step of episode start
+    return ((np.arange(n) - start + 1) % horizon == 0) & ~terminals
+
+
 def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
     """Split D4RL flat arrays into episodes on ``terminals | timeouts``, after validating them.
 
     A trailing segment with neither flag is kept as a final (time-out-like) episode.
 
     Raises:
-      DatasetError: missing keys, mismatched lengths, wrong ranks, NaN/inf, or no transitions.
+      DatasetError: missing keys, mismatched lengths, wrong ranks or dtypes, values that are not finite once in
+        float32 (NaN, inf, or beyond float32's range), flags other than 0/1, or no transitions.
     """
     missing = [k for k in REQUIRED_KEYS if k not in arrays]
     if missing:
         raise DatasetError(f"{source}: missing keys {missing}; a D4RL-layout dataset needs {list(REQUIRED_KEYS)}")
     a = {k: np.asarray(arrays[k]) for k in REQUIRED_KEYS}
+    not_numeric = {k: str(v.dtype) for k, v in a.items() if not (np.issubdtype(v.dtype, np.number) or v.dtype == bool)}
+    if not_numeric:
+        raise DatasetError(f"{source}: non-numeric arrays {not_numeric}; expected floats (and 0/1 or bool flags)")
     sizes = {k: v.shape[0] if v.ndim else None for k, v in a.items()}
     if len(set(sizes.values())) != 1:
         raise DatasetError(f"{source}: keys have mismatched lengths {sizes}")
@@ -104,10 +135,18 @@ def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
         raise DatasetError(f"{source}: wrong shapes {bad_rank}; expected observations/actions [n, d] and "
                            f"rewards/terminals/timeouts [n]")
     for k in ("observations", "actions", "rewards"):
+        with np.errstate(over="ignore", invalid="ignore"):
+            a[k] = a[k].astype(np.float32)  # checked after the conversion: 1e39 is finite in float64, not here
         bad = ~np.isfinite(a[k])
         if bad.any():
             rows = np.nonzero(bad.reshape(n, -1).any(1))[0]
-            raise DatasetError(f"{source}: non-finite values (NaN/inf) in {k!r} at {len(rows)} rows, "
+            raise DatasetError(f"{source}: non-finite values in {k!r} as float32 (NaN, inf, or beyond ±3.4e38) at "
+                               f"{len(rows)} rows, first {rows[:5].tolist()}")
+    for k in ("terminals", "timeouts"):
+        bad = (a[k] != 0) & (a[k] != 1)  # NaN compares unequal to both
+        if bad.any():
+            rows = np.nonzero(bad)[0]
+            raise DatasetError(f"{source}: {k!r} must be 0/1 (or bool), got {a[k][rows[0]]!r} at {len(rows)} rows, "
                                f"first {rows[:5].tolist()}")
     ends = a["terminals"].astype(bool) | a["timeouts"].astype(bool)
     stops = np.nonzero(ends)[0] + 1
@@ -125,13 +164,18 @@ def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
         out[~valid] = 0.0
         return out
 
-    return Trajectories(
+    data = Trajectories(
         observations=pad(a["observations"]),
         actions=pad(a["actions"]),
         rewards=pad(a["rewards"]),
         lengths=lengths,
         terminals=a["terminals"].astype(bool)[stops - 1],
     )
+    with np.errstate(over="ignore", invalid="ignore"):
+        bad = np.nonzero(~np.isfinite(data.returns))[0]
+    if len(bad):
+        raise DatasetError(f"{source}: the returns of {len(bad)} episodes overflow float32 (first {bad[:5].tolist()})")
+    return data
 
 
 def from_padded(observations, actions, rewards, lengths, terminals) -> Trajectories:

@@ -18,6 +18,8 @@ Episodes are whole (``horizon`` steps unless terminated) and collected in batche
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import math
 import os
 import time
@@ -25,19 +27,14 @@ import time
 import jax
 import numpy as np
 
-from ..envs import env_spec, normalized_score
-from .d4rl import load_d4rl, save_d4rl
+from ..caches import cache_dir
+from ..envs import check_dataset, env_spec, normalized_score
+from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
 
 NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
 DEFAULT_TRANSITIONS = 100_000
 MAX_BATCH = 128  # episodes per jitted rollout call (at most)
-
-
-def cache_dir() -> str:
-    """``$XDG_CACHE_HOME/minsubdt_jax`` or ``~/.cache/minsubdt_jax``."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "minsubdt_jax")
 
 
 def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: int) -> str:
@@ -106,31 +103,69 @@ def generate_random(env: str, episodes: int, horizon: int, seed: int) -> Traject
 
 
 def resolve_dataset(env: str, dataset: str, *, transitions: int = DEFAULT_TRANSITIONS, horizon: int = 1000,
-                    seed: int = 0, verbose: bool = True) -> tuple[Trajectories, str]:
-    """Load ``dataset``: a path to a D4RL-layout hdf5 file, or a name in ``NAMED_DATASETS`` (recorded into the
-    cache on first use). Returns the dataset and its file path."""
+                    seed: int = 0, verbose: bool = True) -> DatasetFile:
+    """Load ``dataset`` for ``env``: a path to a D4RL-layout hdf5 file, or a name in ``NAMED_DATASETS`` (recorded
+    into the cache on first use), checked against the env (:func:`minsubdt_jax.envs.check_dataset`).
+
+    A recording holds a lock on its cache file, so concurrent processes asking for the same dataset record it
+    once: the others wait, then load the finished file. Readers never see a partial file (see ``save_d4rl``).
+
+    Raises:
+      DatasetError: a bad file or name, a damaged cache file (the message says how to record it again), or data
+        that cannot come from ``env``.
+    """
     if os.sep in dataset or dataset.endswith((".hdf5", ".h5")) or os.path.exists(dataset):
-        return load_d4rl(dataset), dataset
+        return _checked(open_d4rl(dataset, horizon), env)
     if dataset not in NAMED_DATASETS:
         raise DatasetError(f"unknown dataset {dataset!r}: give a path to a D4RL-layout .hdf5 file or one of "
                            f"{list(NAMED_DATASETS)}")
     if transitions < 1 or horizon < 1:
         raise DatasetError(f"transitions and horizon must be >= 1, got {transitions} and {horizon}")
     path = dataset_path(env, dataset, transitions, horizon, seed)
-    if os.path.exists(path):
-        return load_d4rl(path), path
-    t0 = time.time()
-    if dataset == "medium-expert":
-        parts = [resolve_dataset(env, d, transitions=transitions, horizon=horizon, seed=seed, verbose=verbose)[1]
-                 for d in ("medium", "expert")]
-        data = concatenate([load_d4rl(p) for p in parts])
-        infos = {k: np.concatenate([_read_infos(p)[k] for p in parts]) for k in _read_infos(parts[0])}
-    else:
-        data, infos = generate(env, dataset, transitions, horizon, seed, verbose)
-    save_d4rl(data, path, infos)
+    with _lock(path):
+        if os.path.exists(path):
+            return _checked(_open_cached(path, env, dataset), env)
+        t0 = time.time()
+        if dataset == "medium-expert":
+            parts = [resolve_dataset(env, d, transitions=transitions, horizon=horizon, seed=seed, verbose=verbose)
+                     for d in ("medium", "expert")]
+            data = concatenate([p.data for p in parts])
+            infos = {k: np.concatenate([read_infos(p.path)[k] for p in parts]) for k in read_infos(parts[0].path)}
+        else:
+            data, infos = generate(env, dataset, transitions, horizon, seed, verbose)
+        digest = save_d4rl(data, path, infos, env=env_spec(env).name)
     if verbose:
         print(summary_line(env, dataset, data, time.time() - t0) + f" -> {path}", flush=True)
-    return data, path
+    return _checked(DatasetFile(data, path, digest, env_spec(env).name), env)
+
+
+def _checked(f: DatasetFile, env: str) -> DatasetFile:
+    try:
+        check_dataset(env, f.data.observations, f.data.actions, f.data.lengths, f.env)
+    except ValueError as e:
+        raise DatasetError(f"{f.path}: {e}") from None
+    return f
+
+
+def _open_cached(path: str, env: str, dataset: str) -> DatasetFile:
+    try:
+        return open_d4rl(path)
+    except DatasetError as e:
+        raise DatasetError(f"{e}. It is a cached recording: record it again with `python -m minsubdt_jax.data --env "
+                           f"{env_spec(env).name} --dataset {dataset} --force` (with the same --transitions, "
+                           f"--horizon and --seed), or delete the file") from None
+
+
+@contextlib.contextmanager
+def _lock(path: str):
+    """An exclusive lock on ``path + '.lock'`` (blocks while another process holds it)."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    with open(path + ".lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def summary(env: str, data: Trajectories) -> dict:
@@ -146,10 +181,3 @@ def summary_line(env: str, dataset: str, data: Trajectories, seconds: float | No
     line = (f"{env_spec(env).name}/{dataset}: {s['episodes']} episodes, {s['transitions']} transitions, return "
             f"{s['return_mean']:.1f} ± {s['return_std']:.1f}, normalised score {s['normalized_score_mean']:.1f}")
     return line + (f" ({seconds:.0f} s)" if seconds is not None else "")
-
-
-def _read_infos(path: str) -> dict:
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        return {k: f["infos"][k][()] for k in f["infos"]} if "infos" in f else {}
