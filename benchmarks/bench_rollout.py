@@ -3,10 +3,10 @@
     python benchmarks/bench_rollout.py                       # halfcheetah, cpu-preset DT, 100 x 1000
     python benchmarks/bench_rollout.py --env walker --sequential-episodes 100 --json out.json
 
-Three ways to run the same policy (``minsubdt_jax.evaluate.dt_policy``, K = 20 context) on the same MJX env:
+Three ways to run the same policy (``minsubdt_jax.agents.dt.policy.dt_policy``, K = 20 context) on the same MJX env:
 
 - ``batched``: all episodes in one jitted ``lax.while_loop`` over time, ``vmap`` over episodes (what
-  ``minsubdt_jax.evaluate.evaluate`` does);
+  ``minsubdt_jax.evaluation.evaluate_policy`` does);
 - ``sequential``: the official DT code's way: a Python loop over episodes and steps, one jitted policy call
   and one jitted ``env.step`` per step on a single environment;
 - ``sequential-jit``: one episode at a time, but each episode is one jitted while-loop (batch 1), to separate
@@ -33,8 +33,8 @@ import numpy as np
 
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.envs import env_spec, make_env, make_rollout, random_policy
-from minsubdt_jax.evaluate import PolicyParams, dt_policy, empty_context
-from minsubdt_jax.train import make_model
+from minsubdt_jax.agents.base import PolicyInputs
+from minsubdt_jax.agents.dt.agent import make_dt_agent
 
 
 def setup(env: str, preset: str, policy: str):
@@ -43,14 +43,11 @@ def setup(env: str, preset: str, policy: str):
     spec = env_spec(env)
     if policy == "random":
         return cfg, spec, random_policy, jnp.zeros(spec.act_dim), lambda n: ()
-    model = make_model(cfg, spec.act_dim, 1000)
-    K = cfg.context_len
-    x = (jnp.zeros((1, K, spec.obs_dim)), jnp.zeros((1, K, spec.act_dim)), jnp.zeros((1, K)),
-         jnp.zeros((1, K), jnp.int32), jnp.ones((1, K), bool))
-    params = PolicyParams(model=model.init(jax.random.PRNGKey(0), *x), state_mean=jnp.zeros(spec.obs_dim),
+    agent = make_dt_agent(cfg, spec.obs_dim, spec.act_dim, 1000)
+    params = PolicyInputs(params=agent.init_params(jax.random.PRNGKey(0)), state_mean=jnp.zeros(spec.obs_dim),
                           state_std=jnp.ones(spec.obs_dim), target_return=jnp.float32(0.0),
                           rtg_scale=jnp.float32(1.0), subtract_rewards=jnp.float32(0.0))
-    return cfg, spec, dt_policy(model), params, lambda n: empty_context(n, K, spec.obs_dim, spec.act_dim)
+    return cfg, spec, agent.policy, params, agent.initial_carry
 
 
 def batched(env, policy, params, carry, episodes, horizon, seed=0):

@@ -47,7 +47,8 @@ def worker(preset: str, seeds: int, devices: int, steps: int, repeats: int, seed
     from minsubdt_jax.config import PRESETS
     from minsubdt_jax.data import Trajectories, sampler_data
     from minsubdt_jax.parallel import make_mesh, replicate
-    from minsubdt_jax.train import init_seed_states, init_state, make_model, make_optimizer, make_train_chunk
+    from minsubdt_jax.agents.base import init_seed_states, init_state, make_optimizer, make_train_chunk
+    from minsubdt_jax.agents.dt.agent import make_dt_agent
 
     cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps)
     rng = np.random.default_rng(0)
@@ -57,11 +58,11 @@ def worker(preset: str, seeds: int, devices: int, steps: int, repeats: int, seed
                       np.full(n, T, np.int32), np.zeros(n, bool))
     mean, std = ds.state_stats()
     data = sampler_data(ds, ds.rewards, mean, std)
-    model, tx = make_model(cfg, act, T), make_optimizer(cfg)
-    state = init_seed_states(model, tx, cfg, obs, range(seeds)) if seed_axis else init_state(model, tx, cfg, obs)
+    agent, tx = make_dt_agent(cfg, obs, act, T), make_optimizer(cfg)
+    state = init_seed_states(agent, tx, range(seeds)) if seed_axis else init_state(agent, tx, jax.random.PRNGKey(0))
     mesh = make_mesh(devices, cfg.batch_size)
     state, data = replicate((state, data), mesh)
-    chunk = make_train_chunk(model, tx, cfg, steps, mesh, seed_axis=seed_axis)
+    chunk = make_train_chunk(agent, tx, cfg.batch_size, steps, mesh, seed_axis=seed_axis)
     t0 = time.perf_counter()
     state, losses = chunk(state, data)
     jax.block_until_ready(losses)

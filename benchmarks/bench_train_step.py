@@ -30,7 +30,8 @@ import numpy as np
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.data import Trajectories, sampler_data
 from minsubdt_jax.parallel import make_mesh, replicate
-from minsubdt_jax.train import init_state, make_model, make_optimizer, make_train_chunk, make_train_step
+from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk, make_train_step
+from minsubdt_jax.agents.dt.agent import make_dt_agent
 
 
 def make_matmul(n=2048):
@@ -104,18 +105,18 @@ def bench(preset: str, steps: int, repeats: int, matmul, dropout: float | None =
     ds = synthetic_dataset()
     mean, std = ds.state_stats()
     data = sampler_data(ds, ds.rewards, mean, std)
-    model = make_model(cfg, ds.act_dim, 1000)
+    agent = make_dt_agent(cfg, ds.obs_dim, ds.act_dim, 1000)
     tx = make_optimizer(cfg)
-    state = init_state(model, tx, cfg, ds.obs_dim)
+    state = init_state(agent, tx, jax.random.PRNGKey(cfg.seed))
 
     # XLA's FLOP count of the very step function that the timed chunk scans, and its dots
-    lowered = jax.jit(make_train_step(model, tx, cfg)).lower(state, data)
+    lowered = jax.jit(make_train_step(agent, tx, cfg.batch_size)).lower(state, data)
     flops = lowered.compile().cost_analysis()["flops"]
     dots = step_dots(lowered.as_text())
     dots_run, dot_flops = make_dots_only(dots)
     mesh = make_mesh(devices, cfg.batch_size)
     state, data = replicate((state, data), mesh)
-    chunk = make_train_chunk(model, tx, cfg, steps, mesh)
+    chunk = make_train_chunk(agent, tx, cfg.batch_size, steps, mesh)
     t0 = time.perf_counter()
     state, _ = chunk(state, data)
     jax.block_until_ready(state)

@@ -16,7 +16,7 @@ import json
 import os
 import time
 
-from minsubdt_jax.behavior.policies import load_manifest
+from minsubdt_jax.behavior.snapshots import load_manifest
 from minsubdt_jax.data.named import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary
 
 HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")

@@ -28,24 +28,27 @@ import traceback
 
 import numpy as np
 
+from minsubdt_jax.methods import METHODS as ALL_METHODS
+
 ENVS = ("halfcheetah", "hopper", "walker")
 DATASETS = ("medium-expert", "medium", "medium-replay")
-METHODS = ("subdom", "learned", "true", "none")
-METHOD_NAMES = {"subdom": "MinSubDT (engg. costs)", "learned": "MinSubDT (learned costs)", "true": "DT",
-                "none": "BC"}
+METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
+METHOD_NAMES = {m: ALL_METHODS[m].label for m in METHODS}
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 # Seed Table 1 (gym/D4RL v2 datasets, normalised by D4RL's references): not comparable one to one with ours.
 PUBLISHED = {
-    ("medium-expert", "halfcheetah"): {"subdom": 89.5, "learned": 86.8, "true": 87.0, "none": 59.9},
-    ("medium-expert", "hopper"): {"subdom": 110.7, "learned": 110.8, "true": 107.6, "none": 79.6},
-    ("medium-expert", "walker"): {"subdom": 108.1, "learned": 108.5, "true": 108.1, "none": 36.6},
-    ("medium", "halfcheetah"): {"subdom": 41.3, "learned": 40.9, "true": 42.6, "none": 43.1},
-    ("medium", "hopper"): {"subdom": 56.8, "learned": 55.8, "true": 67.6, "none": 63.9},
-    ("medium", "walker"): {"subdom": 70.4, "learned": 74.9, "true": 74.0, "none": 77.3},
-    ("medium-replay", "halfcheetah"): {"subdom": 32.3, "learned": 31.8, "true": 36.6, "none": 4.3},
-    ("medium-replay", "hopper"): {"subdom": 40.5, "learned": 37.1, "true": 82.7, "none": 27.6},
-    ("medium-replay", "walker"): {"subdom": 37.1, "learned": 36.0, "true": 66.6, "none": 36.9},
+    (d, e): dict(zip(METHODS, v)) for (d, e), v in {
+        ("medium-expert", "halfcheetah"): (89.5, 86.8, 87.0, 59.9),
+        ("medium-expert", "hopper"): (110.7, 110.8, 107.6, 79.6),
+        ("medium-expert", "walker"): (108.1, 108.5, 108.1, 36.6),
+        ("medium", "halfcheetah"): (41.3, 40.9, 42.6, 43.1),
+        ("medium", "hopper"): (56.8, 55.8, 67.6, 63.9),
+        ("medium", "walker"): (70.4, 74.9, 74.0, 77.3),
+        ("medium-replay", "halfcheetah"): (32.3, 31.8, 36.6, 4.3),
+        ("medium-replay", "hopper"): (40.5, 37.1, 82.7, 27.6),
+        ("medium-replay", "walker"): (37.1, 36.0, 66.6, 36.9),
+    }.items()
 }
 
 
@@ -121,7 +124,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         names = [run_name(env, ds, method, s) for s in range(first, first + n)]
         label = names[0] if n == 1 else f"{names[0]}..{first + n - 1}"
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
-        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, returns=method, seed=first, seeds=n,
+        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, method=method, seed=first, seeds=n,
                                   out=os.path.join(runs_root, preset, f"{env}-{ds}-{method}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
@@ -150,7 +153,7 @@ def load_results(preset="cpu", results_root=RESULTS) -> list[dict]:
         with open(path) as f:
             r = json.load(f)
         c = r["config"]
-        rows.append({"env": c["env"], "dataset": c["dataset"], "method": c["returns"], "seed": c["seed"], "r": r})
+        rows.append({"env": c["env"], "dataset": c["dataset"], "method": c["method"], "seed": c["seed"], "r": r})
     return rows
 
 
@@ -168,7 +171,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
         c["seeds"].append(row["seed"])
         c["btd"].append(ev["better_than_mean_demo_share"])
         c["ms"].append(ev["min_subdominance_mean"])
-        c["ms_demo"].append(row["r"]["dataset"]["min_subdominance_mean"] if row["method"] == "subdom" else None)
+        c["ms_demo"].append(row["r"]["dataset"]["min_subdominance_mean"] if row["method"] == "minsubdt" else None)
     table = {}
     for (ds, env, m), c in cells.items():
         s = np.asarray(c["scores"])
@@ -186,9 +189,9 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
     for row in rows:  # rank agreement of -min-subdominance with the true return, per cost representation
         key = f"{row['dataset']}/{row['env']}"
         ds = row["r"]["dataset"]
-        if row["method"] == "subdom":
+        if row["method"] == "minsubdt":
             costs.setdefault(key, {})["engineered_spearman"] = ds["spearman_neg_min_subdominance_vs_return"]
-        elif row["method"] == "learned":
+        elif row["method"] == "minsubdt-learned":
             lc = costs.setdefault(key, {}).setdefault("learned", [])
             lc.append({"seed": row["seed"], "spearman": ds["spearman_neg_min_subdominance_vs_return"],
                        "heldout_pair_accuracy": ds["learned_costs"]["heldout_pair_accuracy"]})

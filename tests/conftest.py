@@ -11,7 +11,10 @@ import tempfile
 import numpy as np
 import pytest
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+# Skipping LLVM's expensive passes cuts XLA's compile time (most of this suite: MJX programs take 15-30 s each)
+# by ~17 % and leaves results bit-identical (checked: a smoke run with and without, experiments/compare_runs.py).
+TEST_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=true --xla_llvm_disable_expensive_passes=true"
+os.environ.setdefault("XLA_FLAGS", TEST_XLA_FLAGS)
 # Set before jax is imported (test modules import it after this file), so jax's config reads them at import.
 # The first process to load this file (the pytest-xdist controller, or pytest itself) makes the folder and removes
 # it at exit; xdist workers inherit it through the environment.

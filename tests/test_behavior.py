@@ -10,7 +10,9 @@ import pytest
 
 from minsubdt_jax.behavior.losses import Transition, critic_loss
 from minsubdt_jax.behavior.networks import Actor, DoubleCritic, sample_tanh_gaussian
-from minsubdt_jax.behavior.train import SACConfig, load_snapshot, save_snapshot, train
+from minsubdt_jax.behavior.snapshots import load_snapshot, save_snapshot
+from minsubdt_jax.behavior.config import SACConfig
+from minsubdt_jax.behavior.train import train
 
 
 def test_tanh_gaussian_log_density_matches_direct_formula():

@@ -4,13 +4,17 @@ import h5py
 import numpy as np
 import pytest
 
-from minsubdt_jax.behavior.policies import load_manifest
+from minsubdt_jax.behavior.snapshots import load_manifest
 from minsubdt_jax.data import generate, load_d4rl, resolve_dataset
 from minsubdt_jax.data.__main__ import main as data_main
-from minsubdt_jax.envs import env_spec, normalized_score, reference_returns
+from minsubdt_jax.envs import env_spec
+from minsubdt_jax.references import normalized_score, reference_returns
 
 pytestmark = pytest.mark.slow
 SMALL = dict(transitions=2000, horizon=1000)  # 8 parallel 1000-step episodes per rollout call
+# random episodes fall within ~60 steps: 32 parallel episodes of at most 60 steps, the rollout program of the
+# session's small dataset (conftest), compiled once
+SIZES = {"random": dict(transitions=480, horizon=60), "medium": SMALL, "expert": SMALL}
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +27,7 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def recorded(cache):
-    return {d: resolve_dataset("hopper", d, **SMALL, verbose=False) for d in ("random", "medium", "expert")}
+    return {d: resolve_dataset("hopper", d, **SIZES[d], verbose=False) for d in SIZES}
 
 
 def test_generation_is_deterministic_for_a_seed(recorded):
@@ -37,12 +41,12 @@ def test_generation_is_deterministic_for_a_seed(recorded):
 
 def test_datasets_reach_the_requested_size_in_whole_episodes(recorded):
     for name, f in recorded.items():
-        data = f.data
-        assert data.num_transitions >= 2000, name
-        assert data.num_transitions - data.lengths[-1] < 2000, name  # the last episode crossed the target
-        assert data.max_len <= 1000
+        data, want, horizon = f.data, SIZES[name]["transitions"], SIZES[name]["horizon"]
+        assert data.num_transitions >= want, name
+        assert data.num_transitions - data.lengths[-1] < want, name  # the last episode crossed the target
+        assert data.max_len <= horizon
         timeouts = ~data.terminals
-        assert np.all(data.lengths[timeouts[:-1].nonzero()[0]] == 1000)  # time-outs are full-horizon episodes
+        assert np.all(data.lengths[timeouts[:-1].nonzero()[0]] == horizon)  # time-outs are full-horizon episodes
 
 
 def test_medium_is_between_random_and_expert(recorded):

@@ -2,7 +2,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from minsubdt_jax.model import DecisionTransformer
+from minsubdt_jax.agents.dt.networks import DecisionTransformer
 
 B, K, OBS, ACT = 2, 6, 5, 3
 
@@ -63,7 +63,7 @@ def test_padding_is_ignored():
 
 
 def test_hash_dropout_keep_rate_scale_and_independence():
-    from minsubdt_jax.model import hash_dropout
+    from minsubdt_jax.agents.dt.networks import hash_dropout
 
     x = jnp.ones((400, 500))
     a = hash_dropout(jax.random.PRNGKey(0), 0.1, x)

@@ -34,3 +34,58 @@ def test_import_as_gives_the_module_in_a_fresh_interpreter():
             "assert isinstance(named, types.ModuleType) and callable(named.generate), named\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]
+
+
+def _internal_imports() -> dict[str, set[str]]:
+    """module -> the package modules it imports (read from the source with ast, nothing executed)."""
+    import ast
+    import os
+
+    root = os.path.dirname(minsubdt_jax.__file__)
+    graph = {}
+    for dirpath, _, files in os.walk(root):
+        for fn in files:
+            if not fn.endswith(".py"):
+                continue
+            rel = os.path.relpath(os.path.join(dirpath, fn), root)[:-3].replace(os.sep, ".")
+            name = "minsubdt_jax" + ("" if rel == "__init__" else "." + rel.removesuffix(".__init__"))
+            package = name if fn == "__init__.py" else name.rpartition(".")[0]
+            deps = set()
+            for node in ast.walk(ast.parse(open(os.path.join(dirpath, fn)).read())):
+                if isinstance(node, ast.ImportFrom):
+                    base = package
+                    for _ in range(max(node.level - 1, 0)):
+                        base = base.rpartition(".")[0]
+                    mod = (base + ("." + node.module if node.module else "")) if node.level else (node.module or "")
+                    deps |= {mod} | {f"{mod}.{a.name}" for a in node.names}
+                elif isinstance(node, ast.Import):
+                    deps |= {a.name for a in node.names}
+            graph[name] = deps
+    return {m: {d for d in deps if d in graph and d != m} for m, deps in graph.items()}
+
+
+def test_imports_have_no_cycle_and_only_the_top_imports_agents():
+    """Data flows one way (dataset -> costs -> min-subdominance -> returns -> agents -> run): the package's
+    import graph has no cycle (package __init__ files re-export, so they are skipped as edges into them)."""
+    graph = _internal_imports()
+    inits = {m for m in graph if m == "minsubdt_jax" or any(m == p for p in ("minsubdt_jax.data", "minsubdt_jax.agents",
+                                                                        "minsubdt_jax.behavior"))}
+    edges = {m: {d for d in deps if d not in inits} for m, deps in graph.items() if m not in inits}
+    state = {}
+
+    def visit(m, path):
+        if state.get(m) == "done":
+            return
+        assert state.get(m) != "active", "import cycle: " + " -> ".join(path + [m])
+        state[m] = "active"
+        for d in edges.get(m, ()):
+            visit(d, path + [m])
+        state[m] = "done"
+
+    for m in edges:
+        visit(m, [])
+    assert "minsubdt_jax.references" in edges["minsubdt_jax.evaluation"]
+    # below the agents nothing imports them; recording a dataset does not load the SAC trainer
+    users = {m for m, deps in graph.items() if any(d.startswith("minsubdt_jax.agents") for d in deps)}
+    assert {u for u in users if not u.startswith("minsubdt_jax.agents")} == {"minsubdt_jax.train"}
+    assert not any(d.startswith("minsubdt_jax.behavior.train") for d in graph["minsubdt_jax.data.named"])

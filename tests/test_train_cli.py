@@ -1,4 +1,5 @@
-"""The training CLI end to end, as a user runs it (subprocesses sharing a persistent XLA cache)."""
+"""The training CLI as a user runs it: one real ``python -m minsubdt_jax.train`` subprocess, the rest through
+``main(argv)`` in this process (the same code path without an interpreter start-up per case)."""
 
 import json
 import os
@@ -29,35 +30,48 @@ def _params(run_dir):
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory, small_dataset_path, cli_env):
     out = tmp_path_factory.mktemp("runs") / "full"
-    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], cli_env)
+    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-every", "10"], cli_env)
     return out, p
 
 
 def test_smoke_train_and_evaluate(full_run):
+    """The quick start's shape at the smoke preset, with periodic evaluation: `--eval-every 10` over 20 steps
+    logs the evaluation at step 10 and the final one at 20 (normalised score per seed) and plots the score."""
     out, p = full_run
     assert "Spearman(-min-subdominance, true return)" in p.stdout
-    for name in ("config.json", "metrics.jsonl", "results.json", "learning_curve.png"):
+    for name in ("config.json", "dataset.json", "metrics.jsonl", "results.json", "learning_curve.png"):
         assert (out / name).exists(), name
     cfg = json.loads((out / "config.json").read_text())
-    assert cfg["preset"] == "smoke" and cfg["steps"] == 20 and cfg["episode_length"] == 60
+    assert cfg["preset"] == "smoke" and cfg["steps"] == 20 and cfg["episode_length"] == 60 and cfg["eval_every"] == 10
     metrics = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    assert [m["step"] for m in metrics] == [10, 20] and all(np.isfinite(m["loss"]) for m in metrics)
+    losses = [m for m in metrics if "loss" in m]
+    evals = [m for m in metrics if "eval_normalized_score" in m]
+    assert [m["step"] for m in losses] == [10, 20] and all(np.isfinite(m["loss"]) for m in losses)
+    assert [(m["step"], m["final"]) for m in evals] == [(10, False), (20, True)]
+    assert all(len(m["eval_normalized_score"]) == 1 and np.isfinite(m["eval_normalized_score"][0]) for m in evals)
     res = json.loads((out / "results.json").read_text())
     ev = res["eval"]
-    assert ev["episodes"] == 2 and 1 <= ev["length_mean"] <= 60
+    assert ev["episodes"] == 3 and 1 <= ev["length_mean"] <= 60
+    assert evals[-1]["eval_normalized_score"] == [ev["normalized_score_mean"]]
     assert set(ev["costs_mean"]) == {"x_velocity", "z_velocity"}
     assert 0 <= ev["min_subdominance_mean"] <= 2 and np.isfinite(ev["normalized_score_mean"])
     assert res["dataset"]["episodes"] == 32 and "MJX" in res["references"]
+    assert res["method"] == {"name": "minsubdt", "label": "MinSubDT (engg. costs)", "agent": "dt"}
+    assert res["platform"]["backend"] == "cpu" and len(res["dataset"]["sha256"]) == 64
+    import matplotlib.image
+
+    assert matplotlib.image.imread(out / "learning_curve.png").shape[1] == 1300  # loss, score, min-subdominance
 
 
-def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_path, cli_env):
-    """Stop after the first chunk (10 steps), resume to 20: identical to the uninterrupted run."""
+def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_path, capsys):
+    """Stop after the first chunk (10 steps), resume to 20: identical to the uninterrupted run (which also
+    evaluated at step 10: evaluation does not touch training)."""
     out = tmp_path / "resumed"
     common = [*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0"]
-    _run([*common, "--steps", "10"], cli_env)
+    assert _main([*common, "--steps", "10"], capsys)[0] == 0
     assert _params(out)[0] == 10
-    p = _run([*common, "--steps", "20", "--resume"], cli_env)
-    assert "resumed from step 10" in p.stdout
+    code, _ = _main([*common, "--steps", "20", "--resume"], capsys)
+    assert code == 0
     step_a, a = _params(full_run[0])
     step_b, b = _params(out)
     assert step_a == step_b == 20
@@ -75,70 +89,51 @@ def _leaves(tree):
     return jax.tree.leaves(tree)
 
 
-def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, cli_env):
+def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, capsys):
     out = tmp_path / "never"
-    p = _run([*SMOKE, "--dataset", str(tmp_path / "missing.hdf5"), "--out", str(out)], cli_env, check=False)
-    assert p.returncode == 2 and "error: no dataset file at" in p.stderr and "Traceback" not in p.stderr
+    code, err = _main([*SMOKE, "--dataset", str(tmp_path / "missing.hdf5"), "--out", str(out)], capsys)
+    assert code == 2 and "error: no dataset file at" in err and "Traceback" not in err
     assert not out.exists()
-    p = _run([*SMOKE, "--steps", "0", "--out", str(out)], cli_env, check=False)
-    assert p.returncode == 2 and "--steps must be > 0" in p.stderr and not out.exists()
-    p = _run(["--env", "ant"], cli_env, check=False)
-    assert p.returncode == 2 and "invalid choice: 'ant'" in p.stderr
+    code, err = _main([*SMOKE, "--steps", "0", "--out", str(out)], capsys)
+    assert code == 2 and "--steps must be > 0" in err and not out.exists()
+    code, err = _main([*SMOKE, "--returns", "true", "--method", "bc", "--out", str(out)], capsys)
+    assert code == 2 and "--returns true means --method dt, not bc" in err and not out.exists()
+    with pytest.raises(SystemExit) as e:  # argparse: usage and exit 2
+        _main(["--env", "ant"], capsys)
+    assert e.value.code == 2 and "invalid choice: 'ant'" in capsys.readouterr().err
 
 
-def test_existing_run_needs_resume(full_run, small_dataset_path, cli_env):
+def test_existing_run_needs_resume(full_run, small_dataset_path, capsys):
     out, _ = full_run
-    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], cli_env, check=False)
-    assert p.returncode == 2 and "pass --resume" in p.stderr
-    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--resume", "--batch-size", "4"], cli_env,
-             check=False)
-    assert p.returncode == 2 and "config differs" in p.stderr and "batch_size" in p.stderr
+    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], capsys)
+    assert code == 2 and "pass --resume" in err
+    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--resume", "--batch-size", "4"],
+                      capsys)
+    assert code == 2 and "config differs" in err and "batch_size" in err
 
 
-def test_named_dataset_is_recorded_on_first_use_then_reused(tmp_path, cli_env):
+def test_named_dataset_is_recorded_on_first_use_then_reused(tmp_path, capsys, monkeypatch):
     """``--dataset medium`` records hopper medium from the committed policy into the cache, once. (The horizon is
-    the default 1000, so the recording program is test_generate's, from the session's compilation cache.)"""
+    the default 1000, so the recording program is test_generate's.)"""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     args = [*SMOKE, "--episode-length", "1000", "--dataset", "medium", "--steps", "10", "--eval-episodes", "0"]
-    p = _run([*args, "--out", str(tmp_path / "a")], cli_env)
-    assert "hopper/medium:" in p.stdout and "transitions" in p.stdout  # the recording summary
+    code, out = _main([*args, "--out", str(tmp_path / "a")], capsys, "out")
+    assert code == 0 and "hopper/medium:" in out and "transitions" in out  # the recording summary
     res = json.loads((tmp_path / "a" / "results.json").read_text())["dataset"]
-    assert res["path"].startswith(cli_env["XDG_CACHE_HOME"]) and "hopper-medium-t2000-h1000-s0" in res["path"]
+    assert res["path"].startswith(str(tmp_path / "xdg")) and "hopper-medium-t2000-h1000-s0" in res["path"]
     assert res["transitions"] >= 2000 and os.path.exists(res["path"])
-    p = _run([*args, "--out", str(tmp_path / "b")], cli_env)
-    assert "hopper/medium:" not in p.stdout  # loaded from the cache, not recorded again
+    code, out = _main([*args, "--out", str(tmp_path / "b")], capsys, "out")
+    assert code == 0 and "hopper/medium:" not in out  # loaded from the cache, not recorded again
     assert json.loads((tmp_path / "b" / "results.json").read_text())["dataset"] == res
+    assert json.loads((tmp_path / "b" / "dataset.json").read_text())["sha256"] == res["sha256"]
 
 
-def test_learned_costs_and_behaviour_cloning_runs(tmp_path, small_dataset_path):
-    """--returns learned trains eq. 3 costs and reports them; --returns none (BC) sets every return token 0."""
-    import dataclasses
-
-    from minsubdt_jax.config import PRESETS, validate
-    from minsubdt_jax.train import prepare, train
-
-    base = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=small_dataset_path, episode_length=60)
-    bc = prepare(validate(dataclasses.replace(base, returns="none")), verbose=False)
-    assert np.all(np.asarray(bc["data"].returns_to_go) == 0) and bc["target_return"] == 0.0
-    res = train(validate(dataclasses.replace(base, returns="learned", cost_dim=3, cost_steps=30,
-                                             out=str(tmp_path / "learned"))), verbose=False)
-    rep = res["dataset"]["learned_costs"]
-    assert res["dataset"]["min_subdominance_features"] == "learned" and len(rep["alpha"]) == 3
-    assert 0 <= rep["heldout_pair_accuracy"] <= 1 and np.isfinite(rep["final_loss"])
-    ev = res["eval"]
-    assert np.isfinite(ev["learned_min_subdominance_mean"]) and 0 <= ev["better_than_mean_demo_share"] <= 1
-    assert len(ev["costs"]) == 2 and len(res["dataset"]["costs_sample"]) == 32
-
-
-def _main(args, capsys):
-    """The CLI in this process (no interpreter start-up): (exit code, stderr)."""
+def _main(args, capsys, stream="err"):
+    """The CLI in this process (no interpreter start-up): (exit code, its stderr, or stdout with stream="out")."""
     from minsubdt_jax.train import main
 
     code = main(args)
-    return code, capsys.readouterr().err
-
-
-def _listing(path):
-    return sorted(str(p.relative_to(path)) for p in path.rglob("*")) if path.exists() else None
+    return code, getattr(capsys.readouterr(), stream)
 
 
 def test_data_that_cannot_be_trained_on_stops_before_anything_is_written(tmp_path, small_dataset_path, capsys):
@@ -216,3 +211,25 @@ def test_resume_refuses_fewer_steps_and_other_data_and_survives_a_torn_log(tmp_p
     steps = [json.loads(ln)["step"] for ln in (out / "metrics.jsonl").read_text().splitlines()]
     assert steps == [10, 20, 30]
     assert json.loads((out / "config.json").read_text())["steps"] == 30
+
+
+def test_learned_costs_and_behaviour_cloning(tmp_path, small_dataset_path):
+    """--method minsubdt-learned trains eq. 3 costs and reports them; --method bc sets every return token 0."""
+    import dataclasses
+
+    from minsubdt_jax.config import PRESETS, validate
+    from minsubdt_jax.methods import get_method
+    from minsubdt_jax.pipeline import prepare
+    from minsubdt_jax.train import train
+
+    base = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=small_dataset_path, episode_length=60)
+    bc = prepare(validate(dataclasses.replace(base, method="bc")), get_method("bc"), verbose=False)
+    assert np.all(np.asarray(bc.sampler.returns_to_go) == 0) and bc.target_return == 0.0
+    res = train(validate(dataclasses.replace(base, method="minsubdt-learned", cost_dim=3, cost_steps=30,
+                                             out=str(tmp_path / "learned"))), verbose=False)
+    rep = res["dataset"]["learned_costs"]
+    assert res["dataset"]["min_subdominance_features"] == "learned" and len(rep["alpha"]) == 3
+    assert 0 <= rep["heldout_pair_accuracy"] <= 1 and np.isfinite(rep["final_loss"])
+    ev = res["eval"]
+    assert np.isfinite(ev["learned_min_subdominance_mean"]) and 0 <= ev["better_than_mean_demo_share"] <= 1
+    assert len(ev["costs"]) == 3 and len(res["dataset"]["costs_sample"]) == 32

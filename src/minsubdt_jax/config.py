@@ -9,6 +9,7 @@ import types
 import typing
 from dataclasses import dataclass
 
+from .methods import METHODS, RETURNS_ALIASES
 from .parallel import distributed_settings
 
 
@@ -18,21 +19,24 @@ class Config:
 
     env: str = "walker"  # hopper | walker | halfcheetah
     dataset: str = "medium"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
-    # subdom: MinSubDT on engineered costs | learned: MinSubDT on costs learned by eq. 3 | true: plain DT on
-    # the dataset's rewards | none: behaviour cloning (the same transformer, every return token 0)
-    returns: str = "subdom"
+    # minsubdt | minsubdt-learned | dt | bc | bc-mlp: see minsubdt_jax.methods (--returns subdom|learned|true|none
+    # still names the first four)
+    method: str = "minsubdt"
     seed: int = 0  # training and evaluation seed (the first one, with --seeds)
     seeds: int = 1  # train seeds seed, seed+1, ..., seed+seeds-1 as one program (vmapped in one jitted step)
     dataset_seed: int = 0  # seed of a recorded named dataset (the data stays fixed across training seeds)
     steps: int = 3000  # gradient steps
     preset: str = "cpu"
     out: str | None = None  # run directory; default runs/{env}-{dataset}-{returns}-s{seed}
-    # model (DT paper: K=20, 128, 3 layers, 1 head, dropout 0.1)
+    # DT (DT paper: K=20, 128, 3 layers, 1 head, dropout 0.1)
     context_len: int = 20
     embed_dim: int = 128
     n_layers: int = 3
     n_heads: int = 1
     dropout: float = 0.1
+    # MLP policy (--method bc-mlp)
+    mlp_hidden: int = 256
+    mlp_layers: int = 2
     # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
     learning_rate: float = 1e-4
     weight_decay: float = 1e-4
@@ -53,6 +57,8 @@ class Config:
     episode_length: int = 1000  # horizon of generated datasets, of evaluation, and of the cost average
     dataset_transitions: int = 100_000  # size of a recorded named dataset (medium-expert: twice)
     eval_episodes: int = 10  # 0 skips the final evaluation
+    eval_every: int = 0  # evaluate every this many steps during training (0: only at the end); multiple of chunk_steps
+    eval_episodes_periodic: int = 10  # episodes per seed of each periodic evaluation
     chunk_steps: int = 500  # steps per jitted lax.scan chunk; a checkpoint and a log line after each
     devices: int = 0  # data parallel over this many local devices (0: all); --batch-size must divide evenly
     # several processes (jax.distributed); unset: from JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES /
@@ -66,7 +72,7 @@ class Config:
             return self.out
         name = self.dataset.rsplit("/", 1)[-1].removesuffix(".hdf5")
         seeds = f"{self.seed}" if self.seeds == 1 else f"{self.seed}-{self.seed + self.seeds - 1}"
-        return f"runs/{self.env}-{name}-{self.returns}-s{seeds}"
+        return f"runs/{self.env}-{name}-{self.method}-s{seeds}"
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -76,16 +82,15 @@ PRESETS = {
     # seconds: for tests and a first look
     "smoke": Config(preset="smoke", steps=20, context_len=5, embed_dim=32, n_layers=1, batch_size=8,
                     warmup_steps=10, learning_rate=1e-3, chunk_steps=10, episode_length=100,
-                    dataset_transitions=2000, eval_episodes=2, cost_steps=20),
+                    dataset_transitions=2000, eval_episodes=3, eval_episodes_periodic=3, cost_steps=20),
     # trains and evaluates one dataset in <= 15 min on a 2-core CPU
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
                   chunk_steps=500, eval_episodes=10, cost_steps=500),
     # the DT paper's hyper-parameters (~14 h on a 2-core CPU)
-    "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100),
+    "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
-CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "returns": ("subdom", "learned", "true", "none"),
-           "preset": tuple(PRESETS)}
+CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "method": tuple(METHODS), "preset": tuple(PRESETS)}
 
 
 def validate(cfg: Config) -> Config:
@@ -95,12 +100,14 @@ def validate(cfg: Config) -> Config:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
                 "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps", "cost_dim",
-                "cost_steps", "cost_pairs", "seeds")
+                "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic")
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
     if cfg.seed < 0 or cfg.dataset_seed < 0:
         raise ValueError(f"--seed and --dataset-seed must be >= 0, got {cfg.seed} and {cfg.dataset_seed}")
+    if cfg.eval_every < 0 or cfg.eval_every % cfg.chunk_steps:
+        raise ValueError(f"--eval-every must be 0 or a multiple of --chunk-steps ({cfg.chunk_steps}), got {cfg.eval_every}")
     if cfg.devices < 0:
         raise ValueError(f"--devices must be >= 0 (0: all local devices), got {cfg.devices}")
     if cfg.eval_episodes < 0 or not 0 <= cfg.dropout < 1 or cfg.weight_decay < 0 or cfg.grad_clip <= 0:
@@ -139,9 +146,17 @@ def parse_args(argv=None) -> tuple[Config, bool]:
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
                                 description="Train a MinSubDT (or DT) on one dataset and evaluate it in MJX.")
     add_flags(p, Config, CHOICES)
+    p.add_argument("--returns", choices=tuple(RETURNS_ALIASES),
+                   help="older name of --method: " + ", ".join(f"{k} = {v}" for k, v in RETURNS_ALIASES.items()))
     p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
     args = vars(p.parse_args(argv))
     resume = args.pop("resume")
+    alias = args.pop("returns")
+    if alias is not None:
+        if args["method"] not in (None, RETURNS_ALIASES[alias]):
+            raise ValueError(f"--returns {alias} means --method {RETURNS_ALIASES[alias]}, not {args['method']}: "
+                             f"give one of them")
+        args["method"] = RETURNS_ALIASES[alias]
     preset = args["preset"] or Config.preset
     given = {k: v for k, v in args.items() if v is not None}
     cfg = dataclasses.replace(PRESETS[preset], **given)

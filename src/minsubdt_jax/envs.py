@@ -1,6 +1,7 @@
 """MJX environments (brax, ``backend='mjx'``), batched rollouts and normalised scores.
 
-One rollout program serves dataset generation and evaluation: ``make_rollout`` returns a jitted
+Normalised scores are in :mod:`minsubdt_jax.references`. One rollout program serves dataset generation and
+evaluation: ``make_rollout`` returns a jitted
 ``run(policy_params, policy_carry, rng)`` that steps ``num_episodes`` environments in parallel inside one
 ``lax.while_loop`` over time (it stops early once every episode has ended), records every transition, and
 keeps termination apart from time-out (``horizon`` steps without termination).
@@ -47,11 +48,6 @@ ENVS = {
     "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None, 0.0),
 }
 _ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
-
-# Normalised-score references (random-policy and expert returns over 1000 steps, measured in these MJX envs)
-# live beside the committed behaviour policies; see minsubdt_jax.behavior.policies.
-REFERENCE_SOURCE = "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes"
-
 
 def env_spec(name: str) -> EnvSpec:
     """The :class:`EnvSpec` for ``hopper``, ``walker`` (``walker2d``) or ``halfcheetah``."""
@@ -101,20 +97,6 @@ def make_env(name: str):
     put_model = functools.partial(mjcf.mjx.put_model, device=jax.local_devices()[0])
     with mock.patch.object(mjcf.mjx, "put_model", put_model):
         return brax_envs.get_environment(env_spec(name).brax_name, backend="mjx")
-
-
-def reference_returns(env: str) -> tuple[float, float]:
-    """``(R_random, R_expert)`` for ``env``, measured in MJX and committed with the behaviour policies."""
-    from .behavior.policies import load_manifest
-
-    refs = load_manifest(env_spec(env).name)["references"]
-    return refs["random"]["return_mean"], refs["expert"]["return_mean"]
-
-
-def normalized_score(env: str, returns):
-    """``100 (R - R_random) / (R_expert - R_random)`` with this env's MJX references (:func:`reference_returns`)."""
-    lo, hi = reference_returns(env)
-    return 100.0 * (np.asarray(returns, np.float64) - lo) / (hi - lo)
 
 
 @struct.dataclass

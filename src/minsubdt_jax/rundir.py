@@ -1,5 +1,6 @@
 """Helpers shared by the command-line programs: run-directory checks before anything is written, resume checks,
-atomic writes, metric-log truncation, progress bar, and one clear ``error:`` line (exit 2) for bad input."""
+atomic writes, the metric log (read, truncate, plot), progress bar, and one clear ``error:`` line (exit 2) for
+bad input."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import os
 import sys
 import tempfile
 from typing import Callable
+
+import numpy as np
 
 DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 
@@ -129,3 +132,35 @@ def exit_code(run: Callable[[], object]) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0
+
+
+def plot_learning_curve(metrics_path: str, png_path: str) -> None:
+    """From ``metrics.jsonl``: the training loss against step and, when the log holds evaluations, the normalised
+    score (mean over seeds, band from the lowest to the highest seed) and min-subdominance against step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_metrics(metrics_path)
+    losses = [r for r in rows if "loss" in r]
+    evals = [r for r in rows if "eval_normalized_score" in r]
+    fig, axes = plt.subplots(1, 3 if evals else 1, figsize=(13 if evals else 5, 3.2), dpi=100, squeeze=False)
+    ax = axes[0, 0]
+    ax.plot([r["step"] for r in losses], [r["loss"] for r in losses], marker=".")
+    ax.set(xlabel="gradient step", ylabel="training loss", yscale="log", title="loss")
+    for ax, key, title in [(a, k, t) for a, (k, t) in zip(axes[0, 1:], [
+            ("eval_normalized_score", "normalised score"), ("eval_min_subdominance", "min-subdominance vs demos")])]:
+        steps = [r["step"] for r in evals]
+        v = np.array([r[key] for r in evals], float)  # [evaluations, seeds]
+        ax.plot(steps, v.mean(1), marker="o")
+        ax.fill_between(steps, v.min(1), v.max(1), alpha=0.25)
+        final = [i for i, r in enumerate(evals) if r.get("final")]
+        ax.plot([steps[i] for i in final], v.mean(1)[final], "k*", markersize=10, label="final evaluation")
+        ax.set(xlabel="gradient step", title=f"{title} ({v.shape[1]} seed(s))")
+        ax.legend(loc="best", fontsize=8)
+    for ax in axes[0]:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(png_path)
+    plt.close(fig)

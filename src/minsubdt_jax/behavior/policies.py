@@ -19,63 +19,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
 import json
 import os
 import shutil
 import sys
 
-import jax
 import numpy as np
 
 from ..caches import enable_compilation_cache
+from ..envs import ENVS, env_spec
 from ..rundir import exit_code
-from ..envs import ENVS, env_spec, make_rollout, random_policy
-from .networks import policy_step
-from .train import SACConfig, load_snapshot
+from .snapshots import POLICY_DIR, load_manifest, load_snapshot, measure_return
+from .config import SACConfig
 
-POLICY_DIR = os.path.join(os.path.dirname(__file__), "snapshots")
 MEDIUM_RANGE = (0.35, 0.6)
-
-
-@functools.lru_cache(maxsize=None)
-def load_manifest(env: str) -> dict:
-    """The committed ``manifest.json`` for ``env`` (references, expert/medium/replay snapshot names)."""
-    path = os.path.join(POLICY_DIR, env_spec(env).name, "manifest.json")
-    if not os.path.exists(path):
-        raise ValueError(f"no behaviour policies for {env!r} in {POLICY_DIR}: train them with "
-                         f"`python -m minsubdt_jax.behavior.train --env {env}` and export them with "
-                         f"`python -m minsubdt_jax.behavior.policies --env {env} --run runs/behavior/{env}`")
-    with open(path) as f:
-        return json.load(f)
-
-
-def load_policy(env: str, role: str):
-    """Actor parameters of the committed ``role`` (``expert`` or ``medium``) policy for ``env``."""
-    return load_snapshot(os.path.join(POLICY_DIR, env_spec(env).name, load_manifest(env)[role]["snapshot"]))[0]
-
-
-def load_replay_policies(env: str) -> list:
-    """Actor parameters of medium-replay's snapshots, earliest first (the last is medium)."""
-    d = os.path.join(POLICY_DIR, env_spec(env).name)
-    return [load_snapshot(os.path.join(d, r["snapshot"]))[0] for r in load_manifest(env)["replay"]]
-
-
-def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int):
-    """``(run, params)``: the cached jitted rollout of the stochastic actor ``actor_params`` (``None``: uniform
-    random actions) over ``episodes`` parallel episodes, and the parameters to call it with."""
-    if actor_params is None:
-        return make_rollout(env, random_policy, episodes, horizon), np.zeros(env_spec(env).act_dim, np.float32)
-    return make_rollout(env, policy_step, episodes, horizon), actor_params
-
-
-def measure_return(env: str, actor_params, episodes: int, horizon: int = 1000, seed: int = 0) -> dict:
-    """Mean ± std return of ``episodes`` stochastic episodes (``actor_params=None``: uniform random actions)."""
-    run, params = make_policy_rollout(env, actor_params, episodes, horizon)
-    ro = jax.device_get(run(params, (), jax.random.PRNGKey(seed)))
-    r = np.asarray(ro.rewards).sum(1)
-    return {"return_mean": float(r.mean()), "return_std": float(r.std()), "episodes": int(episodes),
-            "length_mean": float(np.mean(ro.lengths))}
 
 
 def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, reference_episodes: int = 100,

@@ -17,14 +17,12 @@ buffer, counters) follows each evaluation; ``--resume`` restarts from it with fr
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
 import json
 import os
 import sys
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -32,62 +30,17 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import orbax.checkpoint as ocp
-from flax import struct, traverse_util
+from flax import struct
 
 from ..caches import enable_compilation_cache
-from ..config import add_flags
-from ..envs import ENVS, env_spec, make_env, make_rollout
+from ..envs import env_spec, make_env, make_rollout
 from ..rundir import check_run_dir, exit_code, progress, truncate_metrics
+from .config import SACConfig, parse_args, validate
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
 from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
+from .snapshots import save_snapshot
 
 RESUMABLE_CHANGES = ("steps", "out")
-
-
-@dataclass(frozen=True)
-class SACConfig:
-    """Every field is a ``--flag`` of ``python -m minsubdt_jax.behavior.train``."""
-
-    env: str = "hopper"
-    steps: int = 300_000  # environment steps (transitions) in total
-    seed: int = 0
-    out: str | None = None  # default runs/behavior/{env}
-    num_envs: int = 8
-    updates_per_transition: int = 1
-    batch_size: int = 256
-    hidden: int = 256  # width of the two hidden layers of actor and critics
-    learning_rate: float = 3e-4
-    gamma: float = 0.99
-    tau: float = 0.005
-    buffer_size: int = 1_000_000  # replay capacity (transitions); fixed for the life of a run
-    min_replay: int = 10_000  # uniformly random actions until the buffer holds this many transitions
-    episode_length: int = 1000
-    chunk_steps: int = 2000  # env steps per jitted chunk (a log line after each)
-    eval_every: int = 10_000  # env steps between evaluation + snapshot + checkpoint
-    eval_episodes: int = 8
-
-    def run_dir(self) -> str:
-        return self.out or f"runs/behavior/{env_spec(self.env).name}"
-
-    @property
-    def capacity(self) -> int:
-        return -(-self.buffer_size // self.num_envs) * self.num_envs
-
-
-def validate(cfg: SACConfig) -> SACConfig:
-    env_spec(cfg.env)
-    for name in ("steps", "num_envs", "updates_per_transition", "batch_size", "hidden", "learning_rate",
-                 "buffer_size", "episode_length", "chunk_steps", "eval_every", "eval_episodes"):
-        if not getattr(cfg, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
-    if not (0 < cfg.gamma < 1 and 0 < cfg.tau <= 1 and cfg.min_replay >= cfg.batch_size):
-        raise ValueError("need 0 < --gamma < 1, 0 < --tau <= 1 and --min-replay >= --batch-size")
-    for name in ("chunk_steps", "eval_every", "min_replay"):
-        if getattr(cfg, name) % cfg.num_envs:
-            raise ValueError(f"--{name.replace('_', '-')} must be a multiple of --num-envs ({cfg.num_envs})")
-    if cfg.eval_every % cfg.chunk_steps or cfg.min_replay % cfg.chunk_steps:
-        raise ValueError("--eval-every and --min-replay must be multiples of --chunk-steps")
-    return cfg
 
 
 @struct.dataclass
@@ -220,12 +173,15 @@ class SAC:
             return (state, env_state), (ret_sum, count, info)
 
         def chunk(state, env_state, explore):
-            (state, env_state), (ret_sum, count, info) = jax.lax.scan(
+            (state, new_env_state), (ret_sum, count, info) = jax.lax.scan(
                 functools.partial(iteration, explore=explore), (state, env_state), None,
                 length=cfg.chunk_steps // cfg.num_envs)
             metrics = jax.tree.map(jnp.mean, info)
             metrics["train_return_sum"], metrics["train_episodes"] = jnp.sum(ret_sum), jnp.sum(count)
-            return state, env_state, metrics
+            # brax's step makes some leaves weak-typed (done, a metric): give back the input's types, or the next
+            # call would compile this program a second time
+            return state, jax.tree.map(lambda n, o: jax.lax.convert_element_type(n, o.dtype), new_env_state,
+                                       env_state), metrics
 
         _CHUNKS[key] = jax.jit(chunk, donate_argnums=(0, 1))
         return _CHUNKS[key]
@@ -239,23 +195,6 @@ class SAC:
 def _distinct(tree):
     """Copy every leaf, so no two leaves share a buffer (the chunk donates its inputs)."""
     return jax.tree.map(jnp.copy, tree)
-
-
-def save_snapshot(path: str, actor_params, **meta) -> None:
-    """Actor parameters as a flat ``.npz`` (``params/torso/Dense_0/kernel`` …) plus scalar metadata."""
-    flat = traverse_util.flatten_dict(jax.device_get(actor_params), sep="/")
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, **{k: np.asarray(v, np.float32) for k, v in flat.items()},
-             **{f"meta/{k}": np.asarray(v) for k, v in meta.items()})
-    os.replace(tmp, path)
-
-
-def load_snapshot(path: str) -> tuple[Any, dict]:
-    """``(actor_params, meta)`` saved by :func:`save_snapshot`."""
-    with np.load(path) as z:
-        params = traverse_util.unflatten_dict({k: z[k] for k in z.files if not k.startswith("meta/")}, sep="/")
-        meta = {k[5:]: z[k].item() for k in z.files if k.startswith("meta/")}
-    return params, meta
 
 
 def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[dict]:
@@ -318,16 +257,6 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     bar.close()
     with open(snaps_path) as f:
         return [json.loads(ln) for ln in f if ln.strip()]
-
-
-def parse_args(argv=None) -> tuple[SACConfig, bool]:
-    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.behavior.train",
-                                description="Train a SAC behaviour policy in MJX (snapshots for datasets).")
-    add_flags(p, SACConfig, {"env": tuple(ENVS)})
-    p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
-    args = vars(p.parse_args(argv))
-    resume = args.pop("resume")
-    return validate(SACConfig(**{k: v for k, v in args.items() if v is not None})), resume
 
 
 def main(argv=None) -> int:

@@ -40,7 +40,7 @@ def record(env: str, dataset: str, transitions: int, horizon: int, seed: int, fo
     t0 = time.time()
     f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed)
     if cached:
-        print(summary_line(env, dataset, f.data, time.time() - t0) + f" (cached: {f.path})")
+        print(summary_line(env, dataset, f.data, time.time() - t0, horizon) + f" (cached: {f.path})")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -27,8 +27,10 @@ import time
 import jax
 import numpy as np
 
+from ..behavior.snapshots import load_policy, load_replay_policies, make_policy_rollout
 from ..caches import cache_dir
-from ..envs import check_dataset, env_spec, normalized_score
+from ..envs import check_dataset, env_spec
+from ..evaluation import score_episodes
 from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
 
@@ -45,8 +47,6 @@ def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: i
 def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None) -> tuple[Trajectories, dict]:
     """Whole episodes of one policy (``actor_params=None``: uniform random actions) in batched MJX until they
     hold at least ``transitions`` transitions. Returns the episodes and their flat per-step ``infos``."""
-    from ..behavior.policies import make_policy_rollout
-
     # enough episodes in one call when they average a quarter of the horizon; one compiled shape per call site
     batch = max(1, min(MAX_BATCH, 4 * math.ceil(transitions / horizon)))
     run, actor_params = make_policy_rollout(env, actor_params, batch, horizon)
@@ -75,8 +75,6 @@ def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, hor
     """Record the named ``dataset`` (not ``medium-expert``, which :func:`resolve_dataset` assembles)."""
     from tqdm import tqdm
 
-    from ..behavior.policies import load_policy, load_replay_policies
-
     if dataset == "random":
         policies = [None]
     elif dataset in ("medium", "expert"):
@@ -95,8 +93,6 @@ def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, hor
 
 def generate_random(env: str, episodes: int, horizon: int, seed: int) -> Trajectories:
     """Exactly ``episodes`` episodes of uniformly random actions (for tests and small experiments)."""
-    from ..behavior.policies import make_policy_rollout
-
     run, params = make_policy_rollout(env, None, episodes, horizon)
     ro = jax.device_get(run(params, (), jax.random.PRNGKey(seed)))
     return from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
@@ -135,7 +131,7 @@ def resolve_dataset(env: str, dataset: str, *, transitions: int = DEFAULT_TRANSI
             data, infos = generate(env, dataset, transitions, horizon, seed, verbose)
         digest = save_d4rl(data, path, infos, env=env_spec(env).name)
     if verbose:
-        print(summary_line(env, dataset, data, time.time() - t0) + f" -> {path}", flush=True)
+        print(summary_line(env, dataset, data, time.time() - t0, horizon) + f" -> {path}", flush=True)
     return _checked(DatasetFile(data, path, digest, env_spec(env).name), env)
 
 
@@ -168,16 +164,16 @@ def _lock(path: str):
             fcntl.flock(f, fcntl.LOCK_UN)
 
 
-def summary(env: str, data: Trajectories) -> dict:
-    r = data.returns
-    ns = normalized_score(env, r)
-    return {"episodes": data.num_trajectories, "transitions": data.num_transitions, "return_mean": float(r.mean()),
-            "return_std": float(r.std()), "normalized_score_mean": float(ns.mean()),
-            "normalized_score_std": float(ns.std())}
+def summary(env: str, data: Trajectories, horizon: int = 1000) -> dict:
+    """Episodes, transitions, return, normalised score and engineered cost means of a dataset, scored as any
+    policy's episodes are (:func:`minsubdt_jax.evaluation.score_episodes`)."""
+    s = score_episodes(env, data.observations, data.lengths, data.rewards, horizon=max(horizon, data.max_len)).summary()
+    keep = ("return_mean", "return_std", "normalized_score_mean", "normalized_score_std", "length_mean", "costs_mean")
+    return {"episodes": data.num_trajectories, "transitions": data.num_transitions, **{k: s[k] for k in keep}}
 
 
-def summary_line(env: str, dataset: str, data: Trajectories, seconds: float | None = None) -> str:
-    s = summary(env, data)
+def summary_line(env: str, dataset: str, data: Trajectories, seconds: float | None = None, horizon: int = 1000) -> str:
+    s = summary(env, data, horizon)
     line = (f"{env_spec(env).name}/{dataset}: {s['episodes']} episodes, {s['transitions']} transitions, return "
             f"{s['return_mean']:.1f} ± {s['return_std']:.1f}, normalised score {s['normalized_score_mean']:.1f}")
     return line + (f" ({seconds:.0f} s)" if seconds is not None else "")

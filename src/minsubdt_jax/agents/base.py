@@ -1,0 +1,115 @@
+"""What every agent shares: the train state, the optimiser, one generic train step and its scanned chunk, the
+inputs of a rollout policy, and the interface an agent implements.
+
+An agent (``agents/<name>/``, brax-style: ``networks.py``, ``losses.py``, ``agent.py``) is a frozen, hashable
+record built from the :class:`~minsubdt_jax.config.Config` and the data's shapes, with:
+
+* ``context_len``: the length of the windows it trains on (:func:`minsubdt_jax.data.sample_batch`);
+* ``init_params(key)``: fresh parameters;
+* ``loss(params, batch, rng) -> scalar``: its training loss on a :class:`~minsubdt_jax.data.Batch`;
+* ``policy``: a rollout policy for :func:`minsubdt_jax.envs.make_rollout`, called with :class:`PolicyInputs`;
+* ``initial_carry(n)``: the policy's carry for ``n`` fresh episodes.
+
+Everything else (sampling, the update, seeds, devices, checkpoints, evaluation) is the same for all agents.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Protocol
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from ..data import Batch, SamplerData, sample_batch
+from ..parallel import shard_batch
+
+
+@struct.dataclass
+class TrainState:
+    step: jax.Array
+    params: Any
+    opt_state: Any
+    rng: jax.Array
+
+
+@struct.dataclass
+class PolicyInputs:
+    """Traced inputs of a rollout policy: the agent's ``params``, state normalisation ``[obs]``, the target
+    return (unscaled), the return scale, and whether rewards are subtracted from the return-to-go (1.0 for
+    true returns). Policies that do not condition on a return ignore the last three."""
+
+    params: Any
+    state_mean: jax.Array
+    state_std: jax.Array
+    target_return: jax.Array
+    rtg_scale: jax.Array
+    subtract_rewards: jax.Array
+
+
+class Agent(Protocol):
+    context_len: int
+    policy: Callable
+
+    def init_params(self, key) -> Any: ...
+
+    def loss(self, params, batch: Batch, rng) -> jax.Array: ...
+
+    def initial_carry(self, n: int) -> Any: ...
+
+
+def make_optimizer(cfg) -> optax.GradientTransformation:
+    """AdamW with the DT paper's linear warm-up to a constant rate, after global-norm clipping."""
+    schedule = lambda step: cfg.learning_rate * jnp.minimum((step + 1) / cfg.warmup_steps, 1.0)  # noqa: E731
+    return optax.flatten(optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
+                                     optax.adamw(schedule, weight_decay=cfg.weight_decay)))
+
+
+def init_state(agent: Agent, tx, key) -> TrainState:
+    """Fresh parameters (from one half of ``key``), optimiser state, and the step rng (the other half)."""
+    rng, init_rng = jax.random.split(key)
+    params = agent.init_params(init_rng)
+    return TrainState(step=jnp.zeros((), jnp.int32), params=params, opt_state=tx.init(params), rng=rng)
+
+
+def make_train_step(agent: Agent, tx, batch_size: int, mesh=None):
+    """Pure ``step(state, data) -> (state, loss)``: sample a batch, forward, backward, clipped AdamW update.
+
+    With a ``mesh`` (:func:`minsubdt_jax.parallel.make_mesh`) the batch is split over its devices (data
+    parallel); the step computes the same thing on any number of devices."""
+
+    def step(state: TrainState, data: SamplerData):
+        rng, k_batch, k_drop = jax.random.split(state.rng, 3)
+        batch = shard_batch(sample_batch(k_batch, data, batch_size, agent.context_len), mesh)
+        loss, grads = jax.value_and_grad(lambda p: agent.loss(p, batch, k_drop))(state.params)
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        return TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng), loss
+
+    return step
+
+
+def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
+                     data_axis: int | None = None):
+    """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``
+    (data parallel over ``mesh`` when given: pass ``state`` and ``data`` replicated on it).
+
+    With ``seed_axis`` the state has a leading seed axis (:func:`init_seed_states`) and every step is
+    ``vmap``-ed over it: S independent models train in one program, ``losses [n_steps, S]``. ``data_axis``
+    0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one."""
+    step = make_train_step(agent, tx, batch_size, mesh)
+    if seed_axis:
+        step = jax.vmap(step, in_axes=(0, data_axis))
+
+    def chunk(state, data):
+        return jax.lax.scan(lambda s, _: step(s, data), state, None, length=n_steps)
+
+    return jax.jit(chunk, donate_argnums=0)
+
+
+def init_seed_states(agent: Agent, tx, seeds) -> TrainState:
+    """One :func:`init_state` per seed, stacked on a leading seed axis ``[S, ...]`` (``vmap`` over the keys, so
+    seed s starts exactly where a single-seed run with ``--seed s`` does)."""
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+    return jax.jit(jax.vmap(lambda k: init_state(agent, tx, k)))(keys)

@@ -1,0 +1,1 @@
+"""The Decision Transformer family: ``networks`` (the Flax model), ``losses``, ``policy`` (rollouts), ``agent``."""

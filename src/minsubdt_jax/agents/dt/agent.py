@@ -1,0 +1,51 @@
+"""The Decision Transformer agent (MinSubDT, DT and the DT-architecture BC train this one agent on different
+return tokens: :mod:`minsubdt_jax.methods`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+
+from .losses import action_loss
+from .networks import DecisionTransformer
+from .policy import dt_policy, empty_context
+
+
+@dataclass(frozen=True)
+class DTAgent:
+    """A DT of the given size for ``obs_dim``/``act_dim`` and episodes of up to ``max_timestep`` steps."""
+
+    obs_dim: int
+    act_dim: int
+    context_len: int
+    embed_dim: int
+    n_layers: int
+    n_heads: int
+    dropout: float
+    max_timestep: int
+
+    @property
+    def model(self) -> DecisionTransformer:
+        return DecisionTransformer(act_dim=self.act_dim, embed_dim=self.embed_dim, n_layers=self.n_layers,
+                                   n_heads=self.n_heads, dropout=self.dropout, max_timestep=self.max_timestep)
+
+    def init_params(self, key):
+        K = self.context_len
+        return self.model.init(key, jnp.zeros((1, K, self.obs_dim)), jnp.zeros((1, K, self.act_dim)),
+                               jnp.zeros((1, K)), jnp.zeros((1, K), jnp.int32), jnp.ones((1, K), bool))
+
+    def loss(self, params, batch, rng):
+        return action_loss(self.model, params, batch, rng)
+
+    @property
+    def policy(self):
+        return dt_policy(self.model)
+
+    def initial_carry(self, n: int):
+        return empty_context(n, self.context_len, self.obs_dim, self.act_dim)
+
+
+def make_dt_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> DTAgent:
+    return DTAgent(obs_dim, act_dim, cfg.context_len, cfg.embed_dim, cfg.n_layers, cfg.n_heads, cfg.dropout,
+                   max_timestep)

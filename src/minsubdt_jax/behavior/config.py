@@ -1,0 +1,66 @@
+"""Configuration of the SAC behaviour-policy trainer: one dataclass whose every field is a flag of
+``python -m minsubdt_jax.behavior.train``."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+from ..config import add_flags
+from ..envs import ENVS, env_spec
+
+
+@dataclass(frozen=True)
+class SACConfig:
+    """Every field is a ``--flag`` of ``python -m minsubdt_jax.behavior.train``."""
+
+    env: str = "hopper"
+    steps: int = 300_000  # environment steps (transitions) in total
+    seed: int = 0
+    out: str | None = None  # default runs/behavior/{env}
+    num_envs: int = 8
+    updates_per_transition: int = 1
+    batch_size: int = 256
+    hidden: int = 256  # width of the two hidden layers of actor and critics
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    tau: float = 0.005
+    buffer_size: int = 1_000_000  # replay capacity (transitions); fixed for the life of a run
+    min_replay: int = 10_000  # uniformly random actions until the buffer holds this many transitions
+    episode_length: int = 1000
+    chunk_steps: int = 2000  # env steps per jitted chunk (a log line after each)
+    eval_every: int = 10_000  # env steps between evaluation + snapshot + checkpoint
+    eval_episodes: int = 8
+
+    def run_dir(self) -> str:
+        return self.out or f"runs/behavior/{env_spec(self.env).name}"
+
+    @property
+    def capacity(self) -> int:
+        return -(-self.buffer_size // self.num_envs) * self.num_envs
+
+
+def validate(cfg: SACConfig) -> SACConfig:
+    env_spec(cfg.env)
+    for name in ("steps", "num_envs", "updates_per_transition", "batch_size", "hidden", "learning_rate",
+                 "buffer_size", "episode_length", "chunk_steps", "eval_every", "eval_episodes"):
+        if not getattr(cfg, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if not (0 < cfg.gamma < 1 and 0 < cfg.tau <= 1 and cfg.min_replay >= cfg.batch_size):
+        raise ValueError("need 0 < --gamma < 1, 0 < --tau <= 1 and --min-replay >= --batch-size")
+    for name in ("chunk_steps", "eval_every", "min_replay"):
+        if getattr(cfg, name) % cfg.num_envs:
+            raise ValueError(f"--{name.replace('_', '-')} must be a multiple of --num-envs ({cfg.num_envs})")
+    if cfg.eval_every % cfg.chunk_steps or cfg.min_replay % cfg.chunk_steps:
+        raise ValueError("--eval-every and --min-replay must be multiples of --chunk-steps")
+    return cfg
+
+
+def parse_args(argv=None) -> tuple[SACConfig, bool]:
+    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.behavior.train",
+                                description="Train a SAC behaviour policy in MJX (snapshots for datasets).")
+    add_flags(p, SACConfig, {"env": tuple(ENVS)})
+    p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
+    args = vars(p.parse_args(argv))
+    resume = args.pop("resume")
+    return validate(SACConfig(**{k: v for k, v in args.items() if v is not None})), resume

@@ -1,0 +1,148 @@
+"""Evaluation of any policy: batched MJX rollouts and their scores.
+
+* :func:`rollout_seeds` rolls out S models of one policy (any agent's, :mod:`minsubdt_jax.agents`) in one jitted
+  program (``vmap`` over the seed axis of the policy inputs, episodes split over a device mesh);
+* :func:`score_episodes` scores recorded episodes, whoever acted: return, normalised score, engineered cost
+  features, and, given the demos, min-subdominance against them (eq. 2) and the better-than-demonstrated test.
+  Dataset recording summarises its episodes with it too (:mod:`minsubdt_jax.data.named`);
+* :func:`evaluate_policy` is the two together; :func:`across_seeds` summarises several seeds.
+
+Another evaluation backend is another ``make_rollout`` with the signature of
+:func:`minsubdt_jax.envs.make_rollout` (a :class:`~minsubdt_jax.envs.Rollout` out), passed as ``backend``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .costs import engineered_costs, engineered_spec
+from .envs import make_rollout
+from .parallel import gather
+from .references import normalized_score
+from .subdominance import min_subdominance
+
+
+@dataclass
+class EvalResult:
+    """Per-episode results (numpy): returns ``[n]``, lengths ``[n]``, normalized ``[n]``, costs ``[n, K]``
+    (engineered cost features); with demos: min_subdominance ``[n]`` against the demos' engineered features and
+    beats_mean_demo ``[n]`` (every engineered feature below the demos' mean); for learned costs,
+    learned_min_subdominance ``[n]`` against the demos' learned features."""
+
+    returns: np.ndarray
+    lengths: np.ndarray
+    normalized: np.ndarray
+    costs: np.ndarray
+    cost_names: tuple[str, ...]
+    min_subdominance: np.ndarray | None = None
+    beats_mean_demo: np.ndarray | None = None
+    learned_min_subdominance: np.ndarray | None = None
+
+    def summary(self) -> dict:
+        """The JSON summary written to ``results.json`` (means, stds, and the per-episode returns and costs)."""
+        out = {
+            "episodes": int(len(self.returns)),
+            "return_mean": float(self.returns.mean()), "return_std": float(self.returns.std()),
+            "normalized_score_mean": float(self.normalized.mean()),
+            "normalized_score_std": float(self.normalized.std()),
+            "length_mean": float(self.lengths.mean()),
+            "costs_mean": {n: float(v) for n, v in zip(self.cost_names, self.costs.mean(0))},
+        }
+        if self.min_subdominance is not None:
+            out["min_subdominance_mean"] = float(self.min_subdominance.mean())
+            out["min_subdominance_std"] = float(self.min_subdominance.std())
+            out["better_than_mean_demo_share"] = float(self.beats_mean_demo.mean())
+        if self.learned_min_subdominance is not None:
+            out["learned_min_subdominance_mean"] = float(self.learned_min_subdominance.mean())
+            out["learned_min_subdominance_std"] = float(self.learned_min_subdominance.std())
+        return {**out, "returns": self.returns.tolist(), "costs": self.costs.tolist()}
+
+
+def score_episodes(env: str, observations, lengths, rewards, *, horizon: int, demo_costs=None, beta=1.0,
+                   alpha_max=None, learned=None, demo_features=None) -> EvalResult:
+    """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored).
+
+    With ``demo_costs [M, K]`` (the dataset's engineered features) each episode's min-subdominance (eq. 2, margin
+    ``beta``, cap ``alpha_max``) against them is computed, and whether it beats their mean on every feature.
+    With ``learned`` (a :class:`~minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']``, the
+    min-subdominance on the learned features too.
+    """
+    lengths = np.asarray(lengths)
+    valid = np.arange(np.shape(rewards)[1])[None, :] < lengths[:, None]
+    returns = np.where(valid, np.asarray(rewards), 0.0).sum(1)
+    costs = np.asarray(engineered_costs(env, observations, lengths, horizon))
+    ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized_score(env, returns), costs=costs,
+                    cost_names=engineered_spec(env).names)
+    if demo_costs is not None:
+        demo_costs = np.asarray(demo_costs)
+        ev.min_subdominance = np.asarray(min_subdominance(costs, demo_costs, beta, alpha_max=alpha_max).value)
+        ev.beats_mean_demo = np.all(costs < demo_costs.mean(0), axis=1)
+    if learned is not None:
+        feats = learned.features(observations, lengths)
+        ev.learned_min_subdominance = np.asarray(
+            min_subdominance(feats, np.asarray(demo_features), beta, alpha_max=alpha_max).value)
+    return ev
+
+
+def rollout_seeds(env: str, policy, inputs, carry, *, num_episodes: int, horizon: int, seeds, mesh=None,
+                  backend=make_rollout):
+    """Roll out S models of ``policy``: ``inputs`` (its traced inputs) has a leading seed axis ``[S, ...]``, ``carry``
+    is the policy's initial carry for ``n_run`` episodes, ``seeds [S]`` seed each model's episodes.
+
+    With a ``mesh`` each seed's episodes are split over its devices, in every process of a multi-process job; the
+    number rolled out, ``n_run``, is ``num_episodes`` rounded up to a multiple of the mesh size (see
+    :func:`episodes_to_run`), and the caller scores the first ``num_episodes``, so the result does not depend on
+    the device count. Returns the gathered :class:`~minsubdt_jax.envs.Rollout` ``[S, n_run, ...]``."""
+    n_run = episodes_to_run(num_episodes, mesh)
+    run = _seed_rollout(backend, env, policy, n_run, horizon, mesh)
+    keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
+    return gather(run(inputs, carry, keys))
+
+
+def episodes_to_run(num_episodes: int, mesh=None) -> int:
+    size = 1 if mesh is None else mesh.size
+    return -(-num_episodes // size) * size
+
+
+def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int, seeds, demo_costs, beta=1.0,
+                    alpha_max=None, learned=None, demo_features=None, mesh=None) -> list[EvalResult]:
+    """Roll out ``agent``'s policy for S models (``inputs [S, ...]``, :class:`~minsubdt_jax.agents.base.PolicyInputs`)
+    and score each seed's first ``num_episodes`` episodes against the demos (:func:`score_episodes`).
+    ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed)."""
+    carry = agent.initial_carry(episodes_to_run(num_episodes, mesh))
+    ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
+                       mesh=mesh)
+    return [score_episodes(env, ro.observations[i, :num_episodes], ro.lengths[i, :num_episodes],
+                           ro.rewards[i, :num_episodes], horizon=horizon, demo_costs=demo_costs, beta=beta,
+                           alpha_max=alpha_max, learned=None if learned is None else learned[i],
+                           demo_features=None if demo_features is None else demo_features[i])
+            for i in range(len(seeds))]
+
+
+@functools.lru_cache(maxsize=16)
+def _seed_rollout(backend, env: str, policy, num_episodes: int, horizon: int, mesh):
+    """Jitted ``run(inputs [S, ...], carry, rngs [S]) -> Rollout [S, n, ...]`` (cached per shape)."""
+    run = backend(env, policy, num_episodes, horizon, mesh)
+    return jax.jit(jax.vmap(run, in_axes=(0, None, 0)))
+
+
+def across_seeds(per_seed: list[dict]) -> dict:
+    """The seed-level summary of a multi-seed run: mean ± std over seeds (n = S) of each seed's mean, and every
+    seed's episodes pooled for ``returns`` and ``costs``."""
+    out = {"seeds": [e["seed"] for e in per_seed], "episodes": sum(e["episodes"] for e in per_seed)}
+    for base in ("return", "normalized_score", "min_subdominance", "learned_min_subdominance"):
+        if base + "_mean" in per_seed[0]:
+            v = np.array([e[base + "_mean"] for e in per_seed])
+            out.update({base + "_mean": float(v.mean()), base + "_std": float(v.std()), base + "_per_seed": v.tolist()})
+    for key in ("length_mean", "better_than_mean_demo_share"):
+        out[key] = float(np.mean([e[key] for e in per_seed]))
+    out["costs_mean"] = {k: float(np.mean([e["costs_mean"][k] for e in per_seed])) for k in per_seed[0]["costs_mean"]}
+    out["returns"] = [r for e in per_seed for r in e["returns"]]
+    out["costs"] = [c for e in per_seed for c in e["costs"]]
+    out["target_return"] = per_seed[0]["target_return"]
+    return out

@@ -1,0 +1,116 @@
+"""The data side of a run, in the order data flows: dataset -> cost features -> min-subdominance (eq. 2,
+leave-one-out) -> the method's return tokens -> the sampler's device arrays. One typed record comes out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import Config
+from .costs import engineered_costs, engineered_spec, spearman
+from .data import DatasetFile, SamplerData, resolve_dataset, sampler_data
+from .learned_costs import LearnedCostConfig, LearnedCosts, train_learned_costs
+from .methods import Method
+from .references import normalized_score
+from .subdominance import min_subdominance, returns_to_go
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Everything training and evaluation need from the data.
+
+    Attributes:
+      source: the dataset and its file (path, content hash).
+      costs: ``[N, K]`` engineered cost features of the demos (evaluation compares rollouts with them).
+      features: ``[N, K']`` the features min-subdominance used (engineered, or learned for learned costs).
+      learned: the learned cost model, for a learned-cost method.
+      min_subdominance: ``[N]`` each demo's min-subdominance against the others (eq. 2, leave-one-out).
+      sampler: the device arrays the train step samples from (states normalised, return tokens scaled).
+      state_mean, state_std: ``[obs]`` state normalisation.
+      rtg_scale, target_return: the return tokens' divisor and the evaluation target (unscaled).
+    """
+
+    source: DatasetFile
+    costs: np.ndarray
+    features: np.ndarray
+    learned: LearnedCosts | None
+    min_subdominance: np.ndarray
+    sampler: SamplerData
+    state_mean: np.ndarray
+    state_std: np.ndarray
+    rtg_scale: float
+    target_return: float
+
+    def summary(self, env: str) -> dict:
+        """The dataset block of ``results.json``."""
+        data, ms = self.source.data, self.min_subdominance
+        out = {
+            "path": self.source.path, "sha256": self.source.sha256, "timeouts_inferred": self.source.timeouts_inferred,
+            "episodes": data.num_trajectories, "transitions": data.num_transitions,
+            "return_mean": float(data.returns.mean()), "return_std": float(data.returns.std()),
+            "normalized_score_mean": float(normalized_score(env, data.returns).mean()),
+            "costs_mean": dict(zip(engineered_spec(env).names, map(float, self.costs.mean(0)))),
+            "min_subdominance_mean": float(ms.mean()), "min_subdominance_std": float(ms.std()),
+            "spearman_neg_min_subdominance_vs_return": spearman(-ms, data.returns),
+            "min_subdominance_features": "learned" if self.learned else "engineered",
+            # up to 300 demos' engineered cost features, for the demos-vs-rollouts scatter of experiments/table1.py
+            "costs_sample": self.costs[np.sort(np.random.default_rng(0).permutation(len(self.costs))[:300])].tolist(),
+        }
+        if self.learned:
+            out["learned_costs"] = self.learned.report
+        return out
+
+
+def prepare(cfg: Config, method: Method, verbose: bool = True) -> Prepared:
+    """Load (or record) ``cfg.dataset`` for ``cfg.env``, check it, and build ``method``'s training data.
+
+    Raises ValueError (before anything is written) on data that cannot be used: see the checks below and
+    :func:`~minsubdt_jax.data.resolve_dataset`."""
+    source = resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions, horizon=cfg.episode_length,
+                             seed=cfg.dataset_seed, verbose=verbose)
+    dataset, path = source.data, source.path
+    if dataset.max_len > cfg.episode_length:
+        raise ValueError(f"the dataset has episodes of {dataset.max_len} steps, longer than --episode-length "
+                         f"{cfg.episode_length}")
+    if dataset.num_trajectories < 2:
+        raise ValueError(f"{path}: the dataset has {dataset.num_trajectories} episode; min-subdominance scores each "
+                         f"demonstration against the others and needs at least 2")
+    costs = np.asarray(engineered_costs(cfg.env, dataset.observations, dataset.lengths, cfg.episode_length))
+    with np.errstate(over="ignore", invalid="ignore"):
+        mean, std = dataset.state_stats()
+    if not (np.isfinite(mean).all() and np.isfinite(std).all()):
+        raise ValueError(f"{path}: the observations' mean or standard deviation overflows float32; the states "
+                         f"cannot be normalised")
+    learned = None
+    features = costs
+    if method.features == "learned":
+        lc_cfg = LearnedCostConfig(cost_dim=cfg.cost_dim, steps=cfg.cost_steps, pairs_per_step=cfg.cost_pairs,
+                                   label_noise=cfg.cost_label_noise, seed=cfg.seed)
+        learned = train_learned_costs(dataset.observations, dataset.lengths, dataset.returns, lc_cfg, beta=cfg.beta,
+                                      horizon=cfg.episode_length, state_mean=mean, state_std=std)
+        features = learned.features(dataset.observations, dataset.lengths)
+    ms = np.asarray(min_subdominance(features, features, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True).value)
+    rtg_scale = cfg.rtg_scale or method.rtg_scale
+    target = method.target_return(dataset.returns) if cfg.target_return is None else cfg.target_return
+    rtg = np.asarray(returns_to_go(method.rewards(dataset, ms), dataset.lengths)) / rtg_scale
+    if not np.isfinite(rtg).all():
+        raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
+    prep = Prepared(source=source, costs=costs, features=features, learned=learned, min_subdominance=ms,
+                    sampler=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale,
+                    target_return=target)
+    if verbose:
+        _report(prep, cfg)
+    return prep
+
+
+def _report(prep: Prepared, cfg: Config) -> None:
+    data, ms = prep.source.data, prep.min_subdominance
+    print(f"dataset {prep.source.path}: {data.num_trajectories} episodes, {data.num_transitions} transitions, return "
+          f"{data.returns.mean():.1f} ± {data.returns.std():.1f}")
+    print(f"min-subdominance {ms.mean():.3f} ± {ms.std():.3f}; Spearman(-min-subdominance, true return) = "
+          f"{spearman(-ms, data.returns):.3f}", flush=True)
+    if prep.learned:
+        r = prep.learned.report
+        print(f"learned costs (K'={cfg.cost_dim}): held-out pair accuracy {r['heldout_pair_accuracy']:.3f}, "
+              f"train {r['train_pair_accuracy']:.3f}", flush=True)

@@ -1,0 +1,91 @@
+"""Methods as records and agents as folders: the MLP behaviour-cloning agent learns, runs through the same loop,
+evaluation and results layout as the DT, and each method's record makes its return tokens."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+import pytest
+
+from minsubdt_jax.agents import AGENTS, make_agent
+from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk
+from minsubdt_jax.config import PRESETS, parse_args, validate
+from minsubdt_jax.costs import engineered_costs
+from minsubdt_jax.data import Trajectories, sampler_data
+from minsubdt_jax.methods import METHODS, RETURNS_ALIASES, get_method
+from minsubdt_jax.pipeline import prepare
+from minsubdt_jax.subdominance import min_subdominance
+
+
+def test_every_method_names_a_registered_agent_and_returns_aliases_map_to_methods():
+    assert {m.agent for m in METHODS.values()} <= set(AGENTS)
+    assert RETURNS_ALIASES == {"subdom": "minsubdt", "learned": "minsubdt-learned", "true": "dt", "none": "bc"}
+    assert parse_args(["--returns", "true"])[0].method == "dt"
+    assert parse_args(["--method", "bc-mlp"])[0].method == "bc-mlp"
+    with pytest.raises(ValueError, match="--method must be one of"):
+        get_method("cql")
+
+
+def test_mlp_agent_learns_a_state_to_action_map():
+    """Actions a = tanh(W s) of the state: after 400 steps the MLP predicts them on new states far better than
+    at the start (the loss is the agent's own, through the shared step)."""
+    rng = np.random.default_rng(0)
+    n, T, obs, act = 16, 50, 5, 2
+    W = rng.normal(size=(obs, act))
+    states = rng.normal(size=(n, T, obs)).astype(np.float32)
+    ds = Trajectories(states, np.tanh(states @ W).astype(np.float32), np.zeros((n, T), np.float32),
+                      np.full(n, T, np.int32), np.zeros(n, bool))
+    data = sampler_data(ds, np.zeros((n, T)), np.zeros(obs, np.float32), np.ones(obs, np.float32))
+    cfg = dataclasses.replace(PRESETS["smoke"], mlp_hidden=64, learning_rate=3e-3, warmup_steps=10, batch_size=64)
+    agent = make_agent("mlp", cfg, obs, act, T)
+    assert agent.context_len == 1 and agent.initial_carry(4) == ()
+    tx = make_optimizer(cfg)
+    state = init_state(agent, tx, jax.random.PRNGKey(0))
+    test = rng.normal(size=(200, obs)).astype(np.float32)
+    err = lambda p: float(np.mean((np.asarray(agent.model.apply(p, test)) - np.tanh(test @ W)) ** 2))  # noqa: E731
+    before = err(state.params)
+    state, losses = make_train_chunk(agent, tx, cfg.batch_size, 400)(state, data)
+    assert err(state.params) < 0.05 * before and float(losses[-50:].mean()) < 0.05 * float(losses[:10].mean())
+
+
+def test_methods_make_their_return_tokens(small_dataset_path):
+    """minsubdt: -min-subdominance (eq. 2, engineered costs, leave-one-out) at every step of an episode; dt: the
+    true returns-to-go / 1000 and the dataset's best return as target; bc and bc-mlp: zeros."""
+    base = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=small_dataset_path, episode_length=60)
+    preps = {m: prepare(validate(dataclasses.replace(base, method=m)), get_method(m), verbose=False)
+             for m in ("minsubdt", "dt", "bc-mlp")}
+    data = preps["dt"].source.data
+    valid = data.valid_mask()
+    f = np.asarray(engineered_costs("hopper", data.observations, data.lengths, 60))
+    ms = np.asarray(min_subdominance(f, f, leave_one_out=True).value)
+    rtg = np.asarray(preps["minsubdt"].sampler.returns_to_go)
+    np.testing.assert_allclose(rtg, np.where(valid, -ms[:, None], 0.0), rtol=1e-6)
+    true_rtg = np.flip(np.cumsum(np.flip(data.rewards, 1), 1), 1) / 1000.0
+    np.testing.assert_allclose(np.asarray(preps["dt"].sampler.returns_to_go), np.where(valid, true_rtg, 0), rtol=1e-5,
+                               atol=1e-6)
+    assert preps["dt"].target_return == pytest.approx(float(data.returns.max())) and preps["minsubdt"].target_return == 0
+    assert not np.asarray(preps["bc-mlp"].sampler.returns_to_go).any()
+
+
+def test_bc_mlp_trains_and_is_evaluated_like_the_dt(tmp_path, small_dataset_path):
+    """The non-DT agent in the same run loop: checkpoints, periodic and final evaluation in MJX, the same
+    results.json layout as a DT run, and every metrics record passed to progress_fn."""
+    from minsubdt_jax.train import train
+
+    cfg = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=small_dataset_path, episode_length=60,
+                              method="bc-mlp", eval_every=10, out=str(tmp_path / "mlp"))
+    seen = []
+    res = train(validate(cfg), verbose=False, progress_fn=lambda step, rec: seen.append((step, sorted(rec))))
+    assert res["method"] == {"name": "bc-mlp", "label": "BC (MLP)", "agent": "mlp"}
+    ev = res["eval"]
+    assert ev["episodes"] == 3 and np.isfinite(ev["normalized_score_mean"]) and 0 <= ev["min_subdominance_mean"] <= 2
+    assert set(res) == {"config", "method", "dataset", "references", "platform", "seeds", "train", "eval_per_seed",
+                        "eval"}
+    assert set(ev) >= {"returns", "costs", "normalized_score_std", "better_than_mean_demo_share", "seconds"}
+    records = [json.loads(ln) for ln in open(tmp_path / "mlp" / "metrics.jsonl")]
+    assert [(r["step"], sorted(r)) for r in records] == seen
+    assert [r["step"] for r in records if "eval_normalized_score" in r] == [10, 20]
+    params = ocp.CheckpointManager(str(tmp_path / "mlp" / "checkpoints")).restore(20)["params"]
+    assert (1, 11, 256) in [np.shape(p) for p in jax.tree.leaves(params)]  # [seeds, obs, hidden]: the MLP's layer
