@@ -1,9 +1,11 @@
-"""An MLP policy: normalised state -> action in [-1, 1]."""
+"""An MLP policy: normalised state -> action in [-1, 1] (the SAC networks' torso, a tanh head)."""
 
 from __future__ import annotations
 
 import flax.linen as nn
 import jax.numpy as jnp
+
+from ...behavior.networks import MLP
 
 
 class MLPPolicy(nn.Module):
@@ -15,7 +17,4 @@ class MLPPolicy(nn.Module):
 
     @nn.compact
     def __call__(self, states):
-        h = states
-        for _ in range(self.layers):
-            h = nn.relu(nn.Dense(self.hidden)(h))
-        return jnp.tanh(nn.Dense(self.act_dim)(h))
+        return jnp.tanh(nn.Dense(self.act_dim)(MLP((self.hidden,) * self.layers)(states)))
