@@ -2,13 +2,15 @@
 
     python experiments/table1.py                      # run what is missing (cpu preset, 3 seeds), then aggregate
     python experiments/table1.py run --seeds 0 --envs hopper --datasets medium
+    python experiments/table1.py run --preset paper --envs walker --datasets medium   # one unit: 4 methods x 3 seeds
     python experiments/table1.py aggregate            # tables and plots from the results present
 
-Every run (env x dataset x method x seed) trains with ``minsubdt_jax.train.train`` and writes its compact
-result to ``experiments/results/table1/{preset}/{name}.json``; a run whose result exists is skipped, so an
-interrupted sweep resumes where it stopped (the lowest missing seed of every cell first). A cell's missing
-consecutive seeds a..b train together as one ``--seeds S`` program, checkpointed (resumable) in
-``runs/table1/{preset}/{env}-{dataset}-{method}-s{a}-{b}`` (``-s{a}`` for one seed). The datasets are the
+Every run (env x dataset x method x seed) is one model; its compact result goes to
+``experiments/results/table1/{preset}/{name}.json`` (with the dataset's content hash and the platform), and a run
+whose result exists is skipped, so an interrupted sweep resumes where it stopped (the lowest missing seed of
+every cell first). In each env x dataset the methods missing the same consecutive seeds a..b train as one
+program, ``--method m1,m2,... --seeds S`` (a unit: up to 4 methods x 3 seeds = 12 models vmapped in one jitted
+step), checkpointed (resumable, also across machines) in ``runs/table1/{preset}/{env}-{dataset}-{m1+m2...}-s{a}-{b}``. The datasets are the
 named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across training seeds.
 ``aggregate`` writes ``experiments/results/table1.md`` / ``.json`` (normalised score mean ± std over the
 seeds present, with their count; averages with and without medium-replay; the better-than-demonstrated
@@ -71,7 +73,8 @@ def compact(results: dict) -> dict:
             return {k: rnd(v) for k, v in x.items()}
         return x
 
-    return rnd({k: results[k] for k in ("config", "dataset", "train", "eval", "references") if k in results})
+    return rnd({k: results[k] for k in ("config", "method", "dataset", "train", "eval", "references", "platform")
+                if k in results})
 
 
 def seed_runs(seeds) -> list[tuple[int, int]]:
@@ -86,13 +89,14 @@ def seed_runs(seeds) -> list[tuple[int, int]]:
 
 
 def per_seed_results(res: dict, i: int) -> dict:
-    """Seed ``i`` of a ``--seeds S`` run's results, shaped as that seed's single run would report them."""
-    seed = res["seeds"][i] if "seeds" in res else res["config"]["seed"]
-    out = {k: v for k, v in res.items() if k not in ("seeds", "eval_per_seed")}
-    out["config"] = dict(res["config"], seed=seed, seeds=1)
-    if "learned_costs_per_seed" in res["dataset"]:
-        out["dataset"] = {k: v for k, v in res["dataset"].items() if k != "learned_costs_per_seed"}
-        out["dataset"]["learned_costs"] = res["dataset"]["learned_costs_per_seed"][i]
+    """Model ``i`` of a run's results (one of its methods x seeds), shaped as that model's single run would report
+    them: its method and seed in the config, its own data summary and evaluation."""
+    model = res["models"][i] if "models" in res else {"method": res["config"]["method"], "seed": res["config"]["seed"]}
+    out = {k: v for k, v in res.items() if k not in ("seeds", "models", "methods", "eval_per_seed", "eval_by_method",
+                                                        "dataset_per_model")}
+    out["config"] = dict(res["config"], method=model["method"], seed=model["seed"], seeds=1)
+    if "dataset_per_model" in res:
+        out["dataset"] = dict(res["dataset_per_model"][i], costs_sample=res["dataset"].get("costs_sample", []))
     if "eval_per_seed" in res:
         out["eval"] = res["eval_per_seed"][i]
     return out
@@ -102,8 +106,10 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
               results_root=RESULTS, train_fn=None, log=print) -> dict:
     """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
 
-    A cell's missing consecutive seeds train together as one ``--seeds S`` program (vmapped over seeds, equal
-    to S single runs: ``tests/test_scale_out.py``); each seed's result is written as its own file."""
+    In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
+    seeds is one program: ``--method a,b,... --seeds S``, every (method, seed) a model vmapped in one jitted step
+    (equal to single runs: ``tests/test_scale_out.py``). Each model's result is written as its own file; the
+    lowest missing seed of every cell goes first."""
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.config import PRESETS
@@ -115,29 +121,36 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     todo = []
     for d in datasets:
         for e in envs:
+            groups = {}  # (missing seeds, agent) -> the methods missing exactly them (in the order asked)
             for m in methods:
                 have = [s for s in seeds if os.path.exists(path(e, d, m, s))]
                 status["skipped"] += [run_name(e, d, m, s) for s in have]
-                todo += [(first, d, e, m, n) for first, n in seed_runs(set(seeds) - set(have))]
+                missing = tuple(sorted(set(seeds) - set(have)))
+                if missing:
+                    groups.setdefault((missing, ALL_METHODS[m].agent), []).append(m)
+            for (missing, _), ms in groups.items():
+                todo += [(first, d, e, tuple(ms), n) for first, n in seed_runs(missing)]
     todo.sort(key=lambda t: t[0])  # the lowest missing seed of every cell first (stable: datasets, envs, methods)
-    for i, (first, ds, env, method, n) in enumerate(todo):
-        names = [run_name(env, ds, method, s) for s in range(first, first + n)]
-        label = names[0] if n == 1 else f"{names[0]}..{first + n - 1}"
+    for i, (first, ds, env, ms, n) in enumerate(todo):
+        names = [run_name(env, ds, m, s) for m in ms for s in range(first, first + n)]
+        label = "+".join(ms) + f" {env}-{ds} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
-        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, method=method, seed=first, seeds=n,
-                                  out=os.path.join(runs_root, preset, f"{env}-{ds}-{method}{suffix}"))
+        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, method=",".join(ms), seed=first, seeds=n,
+                                  out=os.path.join(runs_root, preset, f"{env}-{ds}-{'+'.join(ms)}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
         try:
             res = train_fn(cfg, resume=os.path.exists(os.path.join(cfg.out, "config.json")), verbose=False)
-        except Exception:  # one failed cell must not stop the sweep; it is reported and retried next time
+        except Exception:  # one failed program must not stop the sweep; it is reported and retried next time
             log(traceback.format_exc())
             status["failed"] += names
             continue
         scores = []
         for j, name in enumerate(names):
             one = per_seed_results(res, j)
-            dst = path(env, ds, method, first + j)
+            m, s = one["config"]["method"], one["config"]["seed"]
+            dst = path(env, ds, m, s)
+            assert name == run_name(env, ds, m, s), (name, m, s)
             with open(dst + ".tmp", "w") as f:
                 json.dump(compact(one), f)
             os.replace(dst + ".tmp", dst)  # a result file is complete or absent
@@ -197,7 +210,8 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
                        "heldout_pair_accuracy": ds["learned_costs"]["heldout_pair_accuracy"]})
     demo = {f"{d}/{e}": next((r["r"]["dataset"]["normalized_score_mean"] for r in rows
                               if r["dataset"] == d and r["env"] == e), None) for d in DATASETS for e in ENVS}
-    out = {"preset": preset, "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
+    episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
+    out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
            "cost_rank_agreement": costs,
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": v for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
@@ -212,8 +226,11 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
 
 
 def _cell(entry) -> str:
+    """``mean ± std (seeds)``; one seed has no spread to show, so it says so instead of "± 0.0"."""
     if entry is None:
         return "–"
+    if entry["n_seeds"] == 1:
+        return f"{entry['mean']:.1f} (1 seed)"
     return f"{entry['mean']:.1f} ± {entry['std']:.1f} ({entry['n_seeds']})"
 
 
@@ -221,9 +238,9 @@ def markdown(out: dict) -> str:
     cols = [METHOD_NAMES[m] for m in METHODS]
     lines = [f"# Table 1 on our MJX datasets (preset `{out['preset']}`)", "",
              "Normalised score (100 = committed SAC expert, 0 = uniform random, in MJX), mean ± std over the "
-             "training seeds present (their count in brackets), 10 evaluation episodes per seed at the cpu "
-             "preset. '–' = not run yet. Regenerate: `python experiments/table1.py` (runs what is missing, "
-             "then aggregates).", "",
+             f"training seeds present (their count in brackets), {out.get('eval_episodes', '?')} evaluation "
+             f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
+             f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
              "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
 
     def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"

@@ -58,13 +58,15 @@ def brute_force_min_subdominance(F, G, beta, alpha_max=np.inf, leave_one_out=Fal
     and the cap, in float64: an independent reference for both solvers."""
     F, G = np.asarray(F, np.float64), np.asarray(G, np.float64)
     beta = np.broadcast_to(np.asarray(beta, np.float64), (F.shape[1],))
+    caps = np.broadcast_to(np.asarray(alpha_max, np.float64), (F.shape[1],))  # scalar or one per feature
     out = np.zeros(F.shape)
     for i in range(F.shape[0]):
         for k in range(F.shape[1]):
             d = F[i, k] - G[:, k]
             if leave_one_out:
                 d = np.delete(d, i)
-            cands = np.array([0.0] + [beta[k] / -x for x in d if x < 0] + ([alpha_max] if np.isfinite(alpha_max) else []))
-            cands = np.minimum(cands, alpha_max)
+            cap = caps[k]
+            cands = np.array([0.0] + [beta[k] / -x for x in d if x < 0] + ([cap] if np.isfinite(cap) else []))
+            cands = np.minimum(cands, cap)
             out[i, k] = min(np.mean(np.maximum(a * d + beta[k], 0.0)) for a in cands)
     return out

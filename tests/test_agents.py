@@ -58,7 +58,7 @@ def test_methods_make_their_return_tokens(small_dataset_path):
              for m in ("minsubdt", "dt", "bc-mlp")}
     data = preps["dt"].source.data
     valid = data.valid_mask()
-    f = np.asarray(engineered_costs("hopper", data.observations, data.lengths, 60))
+    f = np.asarray(engineered_costs("hopper", data.observations, data.lengths, 60, terminated=data.terminals))
     ms = np.asarray(min_subdominance(f, f, leave_one_out=True).value)
     rtg = np.asarray(preps["minsubdt"].sampler.returns_to_go)
     np.testing.assert_allclose(rtg, np.where(valid, -ms[:, None], 0.0), rtol=1e-6)
@@ -81,8 +81,8 @@ def test_bc_mlp_trains_and_is_evaluated_like_the_dt(tmp_path, small_dataset_path
     assert res["method"] == {"name": "bc-mlp", "label": "BC (MLP)", "agent": "mlp"}
     ev = res["eval"]
     assert ev["episodes"] == 3 and np.isfinite(ev["normalized_score_mean"]) and 0 <= ev["min_subdominance_mean"] <= 2
-    assert set(res) == {"config", "method", "dataset", "references", "platform", "seeds", "train", "eval_per_seed",
-                        "eval"}
+    assert set(res) == {"config", "method", "dataset", "references", "platform", "seeds", "models", "train",
+                        "eval_per_seed", "eval"}
     assert set(ev) >= {"returns", "costs", "normalized_score_std", "better_than_mean_demo_share", "seconds"}
     records = [json.loads(ln) for ln in open(tmp_path / "mlp" / "metrics.jsonl")]
     assert [(r["step"], sorted(r)) for r in records] == seen

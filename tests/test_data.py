@@ -20,12 +20,24 @@ def _flat(n=10, obs=3, act=2):
 def test_from_flat_splits_on_terminals_and_timeouts():
     a = _flat()
     d = from_flat(a)
-    assert d.num_trajectories == 3 and d.lengths.tolist() == [4, 4, 2]
-    assert d.terminals.tolist() == [True, False, False]
-    np.testing.assert_allclose(d.returns, [a["rewards"][:4].sum(), a["rewards"][4:8].sum(), a["rewards"][8:].sum()],
-                               rtol=1e-6)
-    np.testing.assert_allclose(d.observations[2, :2], a["observations"][8:], rtol=1e-6)
-    assert np.all(d.observations[2, 2:] == 0)
+    # the last 2 steps end neither way (an episode the recording stopped inside): dropped, as the DT loader does
+    assert d.num_trajectories == 2 and d.lengths.tolist() == [4, 4]
+    assert d.terminals.tolist() == [True, False]
+    np.testing.assert_allclose(d.returns, [a["rewards"][:4].sum(), a["rewards"][4:8].sum()], rtol=1e-6)
+    np.testing.assert_allclose(d.observations[1], a["observations"][4:8], rtol=1e-6)
+
+
+def test_trailing_unfinished_episode_is_dropped_and_counted(tmp_path):
+    from minsubdt_jax.data import open_d4rl
+
+    _write(tmp_path / "t.hdf5", _flat())
+    f = open_d4rl(tmp_path / "t.hdf5")
+    assert f.dropped_transitions == 2 and f.data.num_transitions == 8
+    a = _flat()
+    a["terminals"][:] = False
+    a["timeouts"][:] = False
+    with pytest.raises(DatasetError, match="no episode ends"):
+        from_flat(a)
 
 
 def test_hdf5_round_trip(small_dataset, tmp_path):
@@ -87,8 +99,9 @@ def test_missing_and_unreadable_files(tmp_path):
 def test_state_stats_use_only_real_steps():
     d = from_flat(_flat())
     a = _flat()
-    np.testing.assert_allclose(d.state_stats()[0], a["observations"].mean(0), rtol=1e-5)
-    np.testing.assert_allclose(d.state_stats()[1], a["observations"].std(0), rtol=1e-5)
+    real = a["observations"][:8]  # the two episodes; the unfinished last one is dropped
+    np.testing.assert_allclose(d.state_stats()[0], real.mean(0), rtol=1e-5)
+    np.testing.assert_allclose(d.state_stats()[1], real.std(0), rtol=1e-5)
 
 
 def test_sampler_windows_padding_and_weights():
@@ -148,8 +161,8 @@ def test_v0_file_without_timeouts_infers_them_from_the_horizon(tmp_path):
     del a["timeouts"]
     _write(tmp_path / "v0.hdf5", a)
     f = open_d4rl(tmp_path / "v0.hdf5", horizon=10)
-    assert f.timeouts_inferred and f.data.lengths.tolist() == [4, 10, 10, 1]
-    assert f.data.terminals.tolist() == [True, False, False, False]
+    assert f.timeouts_inferred and f.data.lengths.tolist() == [4, 10, 10] and f.dropped_transitions == 1
+    assert f.data.terminals.tolist() == [True, False, False]
     explicit = from_flat({**a, "timeouts": tout})
     np.testing.assert_array_equal(f.data.observations, explicit.observations)
     assert not open_d4rl(_save_small(tmp_path)).timeouts_inferred

@@ -91,3 +91,18 @@ def test_cli_summary_and_bad_input(recorded, capsys):
     assert "hopper/medium:" in out and "normalised score" in out and "cached" in out
     assert data_main(["--env", "hopper", "--dataset", "medium", "--transitions", "0"]) == 2
     assert "transitions and horizon must be >= 1" in capsys.readouterr().err
+
+
+def test_medium_replay_weights_stand_for_the_replay_buffer():
+    """D4RL's medium-replay is SAC's replay buffer up to the medium checkpoint: the random warm-up holds
+    ``min_replay`` steps, every later step the nearest snapshot's policy, and the steps add up to medium's."""
+    from minsubdt_jax.behavior.snapshots import replay_weights
+
+    for env in ("hopper", "walker", "halfcheetah"):
+        m = load_manifest(env)
+        w = replay_weights(env)
+        steps = [r["step"] for r in m["replay"]]
+        assert len(w) == 1 + len(steps) and all(x > 0 for x in w)
+        assert w[0] == m["training"]["config"]["min_replay"] and sum(w) == m["medium"]["step"] == steps[-1]
+    # hopper's snapshots at 10k, 30k, ..., 160k: boundaries at the midpoints (20k, 40k, 60k, 85k, 110k, ...)
+    assert replay_weights("hopper") == [10000, 10000, 20000, 20000, 25000, 25000, 20000, 20000, 10000]

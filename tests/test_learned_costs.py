@@ -61,7 +61,7 @@ def _synthetic(n=80, T=40, seed=0):
 def test_learned_cost_recovers_the_true_ordering():
     obs, lengths, returns = _synthetic()
     cfg = LearnedCostConfig(cost_dim=2, hidden=16, steps=300, pairs_per_step=32, learning_rate=3e-3, seed=0)
-    model = train_learned_costs(obs, lengths, returns, cfg, horizon=40)
+    model = train_learned_costs(obs, lengths, returns, cfg, terminated=lengths < 40, horizon=40)
     rep = model.report
     assert rep["heldout_pair_accuracy"] > 0.85 and rep["train_pair_accuracy"] > 0.85
     # on fresh trajectories from the same process, the learned features order them like the true return
@@ -69,25 +69,27 @@ def test_learned_cost_recovers_the_true_ordering():
     from minsubdt_jax.costs import spearman
     from minsubdt_jax.subdominance import min_subdominance
 
-    f2 = model.features(obs2, len2)
+    f2 = model.features(obs2, len2, len2 < 40)
     assert f2.shape == (80, 2) and np.all((f2 >= 0) & (f2 <= 1))
     ms = np.asarray(min_subdominance(f2, f2, leave_one_out=True).value)
     assert spearman(-ms, ret2) > 0.8
     # an untrained model does not
     untrained = train_learned_costs(obs, lengths, returns, LearnedCostConfig(cost_dim=2, hidden=16, steps=1,
-                                                                            learning_rate=1e-9), horizon=40)
+                                                                            learning_rate=1e-9),
+                                    terminated=lengths < 40, horizon=40)
     assert untrained.report["heldout_pair_accuracy"] < rep["heldout_pair_accuracy"] - 0.1
 
 
 def test_early_termination_is_never_cheaper():
     obs, lengths, returns = _synthetic(n=20)
-    model = train_learned_costs(obs, lengths, returns, LearnedCostConfig(cost_dim=3, hidden=8, steps=5), horizon=40)
-    full = model.features(obs, np.full(20, 40))
-    cut = model.features(obs, np.full(20, 10))
+    model = train_learned_costs(obs, lengths, returns, LearnedCostConfig(cost_dim=3, hidden=8, steps=5),
+                                terminated=lengths < 40, horizon=40)
+    full = model.features(obs, np.full(20, 40), np.zeros(20, bool))
+    cut = model.features(obs, np.full(20, 10), np.ones(20, bool))
     assert np.all(cut >= full - 1e-6)
 
 
 def test_bad_config():
     obs, lengths, returns = _synthetic(n=20)
     with pytest.raises(ValueError, match="label_noise"):
-        train_learned_costs(obs, lengths, returns, LearnedCostConfig(label_noise=0.6))
+        train_learned_costs(obs, lengths, returns, LearnedCostConfig(label_noise=0.6), terminated=lengths < 40)

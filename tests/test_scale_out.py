@@ -81,11 +81,37 @@ def test_seeds_in_one_program_equal_single_seed_runs(single_runs, small_dataset_
     assert res["eval"]["episodes"] == 9 and len(res["eval"]["returns"]) == 9
 
 
+def test_methods_in_one_program_equal_single_method_runs(single_runs, small_dataset_path, tmp_path):
+    """--method minsubdt,bc,dt: three models (one per method, seed 0) in one program, only their return tokens
+    (and evaluation conditioning) apart; each equals that method's own run. 3 models, as in the 3-seed test: one
+    compiled rollout serves both."""
+    res = train(_cfg(small_dataset_path, tmp_path / "three", method="minsubdt,bc,dt"), verbose=False)
+    assert res["models"] == [{"method": m, "seed": 0} for m in ("minsubdt", "bc", "dt")]
+    assert set(res["eval_by_method"]) == {"minsubdt", "bc", "dt"} and "eval" not in res
+    _, params = _params(tmp_path / "three")
+    losses = _losses(tmp_path / "three")
+    singles = {"minsubdt": single_runs[0]}
+    for m in ("bc", "dt"):
+        singles[m] = (tmp_path / m, train(_cfg(small_dataset_path, tmp_path / m, method=m), verbose=False))
+    for i, m in enumerate(("minsubdt", "bc", "dt")):
+        run_dir, single = singles[m]
+        _, params_1 = _params(run_dir)
+        for a, b in zip(params, params_1):
+            np.testing.assert_allclose(a[i], b[0], rtol=1e-2, atol=ADAM_NOISE)
+        np.testing.assert_allclose(losses[:, i], _losses(run_dir)[:, 0], rtol=1e-5)
+        ev = res["eval_per_seed"][i]
+        assert ev["method"] == m and ev["target_return"] == single["eval"]["target_return"]
+        np.testing.assert_allclose(ev["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
+        assert res["eval_by_method"][m]["normalized_score_mean"] == ev["normalized_score_mean"]
+    # DT's return tokens are the true returns, not MinSubDT's surrogate: the runs really differ
+    assert not np.allclose(losses[:, 0], losses[:, 2])
+
+
 def test_seeds_with_learned_costs_train_one_cost_model_per_seed(small_dataset_path, tmp_path):
     """--method minsubdt-learned: each seed learns its own costs (eq. 3), so each trains on its own returns-to-go."""
     kw = dict(method="minsubdt-learned", cost_steps=20, eval_episodes=0, steps=10)
     res = train(_cfg(small_dataset_path, tmp_path / "both", seeds=2, **kw), verbose=False)
-    accs = [r["heldout_pair_accuracy"] for r in res["dataset"]["learned_costs_per_seed"]]
+    accs = [d["learned_costs"]["heldout_pair_accuracy"] for d in res["dataset_per_model"]]
     assert len(accs) == 2
     both = _losses(tmp_path / "both")
     for s in range(2):

@@ -21,7 +21,9 @@ def instances(draw):
     F = draw(hnp.arrays(np.float64, (N, K), elements=grid))
     G = F.copy() if (loo and draw(st.booleans())) else draw(hnp.arrays(np.float64, (M, K), elements=grid))
     beta = draw(st.one_of(st.just(1.0), hnp.arrays(np.float64, (K,), elements=st.sampled_from([0.25, 0.5, 1.0, 2.0]))))
-    alpha_max = draw(st.sampled_from([None, None, 0.5, 3.0]))
+    alpha_max = draw(st.sampled_from([None, None, 0.5, 3.0, "per feature"]))
+    if alpha_max == "per feature":
+        alpha_max = draw(hnp.arrays(np.float64, (K,), elements=st.sampled_from([0.5, 1.0, 3.0])))
     return F, G, beta, alpha_max, loo
 
 

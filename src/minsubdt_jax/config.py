@@ -20,7 +20,7 @@ class Config:
     env: str = "walker"  # hopper | walker | halfcheetah
     dataset: str = "medium"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
     # minsubdt | minsubdt-learned | dt | bc | bc-mlp: see minsubdt_jax.methods (--returns subdom|learned|true|none
-    # still names the first four)
+    # still names the first four). Several, comma-separated, train in one program (they must share an agent)
     method: str = "minsubdt"
     seed: int = 0  # training and evaluation seed (the first one, with --seeds)
     seeds: int = 1  # train seeds seed, seed+1, ..., seed+seeds-1 as one program (vmapped in one jitted step)
@@ -72,7 +72,12 @@ class Config:
             return self.out
         name = self.dataset.rsplit("/", 1)[-1].removesuffix(".hdf5")
         seeds = f"{self.seed}" if self.seeds == 1 else f"{self.seed}-{self.seed + self.seeds - 1}"
-        return f"runs/{self.env}-{name}-{self.method}-s{seeds}"
+        return f"runs/{self.env}-{name}-{'+'.join(self.methods)}-s{seeds}"
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """The method names of ``--method`` (one, or several comma-separated)."""
+        return tuple(m.strip() for m in self.method.split(","))
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -90,7 +95,7 @@ PRESETS = {
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
-CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "method": tuple(METHODS), "preset": tuple(PRESETS)}
+CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS)}
 
 
 def validate(cfg: Config) -> Config:
@@ -98,6 +103,13 @@ def validate(cfg: Config) -> Config:
     for name, allowed in CHOICES.items():
         if getattr(cfg, name) not in allowed:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
+    bad = [m for m in cfg.methods if m not in METHODS]
+    if bad or len(set(cfg.methods)) != len(cfg.methods):
+        raise ValueError(f"--method must be one or several (comma-separated, each once) of {list(METHODS)}, "
+                         f"got {cfg.method!r}")
+    agents = {METHODS[m].agent for m in cfg.methods}
+    if len(agents) > 1:
+        raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
                 "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps", "cost_dim",
                 "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic")

@@ -4,10 +4,12 @@ The seed uses x-velocity for HalfCheetah and x- and z-velocities for Hopper and 
 transformed into cost metrics". Our transform, per feature k with velocity ``v_k(t)`` read from the state:
 
     c_k(t) = (hi_k - clip(v_k(t), lo_k, hi_k)) / (hi_k - lo_k)        in [0, 1], decreasing in v_k
-    f_k(xi) = 1/H * ( sum_{t < L} c_k(t) + (H - L) * 1 )
+    f_k(xi) = 1/H * ( sum_{t < L} c_k(t) + (H - L) * 1 )      if xi terminated (fell)
+    f_k(xi) = 1/L *   sum_{t < L} c_k(t)                       if it was cut off (time-out, end of data)
 
-``H`` is the episode horizon (1000) and ``L`` the trajectory's length: the steps a trajectory did not live
-are charged the worst per-step cost (1), so falling over early never looks cheap. Both features are
+``H`` is the episode horizon (1000) and ``L`` the trajectory's length: the steps a terminated trajectory did not
+live are charged the worst per-step cost (1), so falling over early never looks cheap; a trajectory cut off
+before the horizon without falling is charged for what it did, not for the steps it was not given. Both features are
 lower-is-better and lie in [0, 1]. For the z-velocity feature note that, along any periodic gait, the mean
 z-velocity is near 0 (c ~ 0.5), so in practice it charges mostly for the horizon not lived.
 """
@@ -48,7 +50,7 @@ def engineered_spec(env: str) -> CostSpec:
                     (x_hi, 2.0))
 
 
-def engineered_costs(env: str, observations, lengths, horizon: int = 1000):
+def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, terminated):
     """Trajectory cost features ``f(xi)`` (see module docstring).
 
     Args:
@@ -56,6 +58,7 @@ def engineered_costs(env: str, observations, lengths, horizon: int = 1000):
       observations: ``[N, T, obs]`` padded states (entries past ``lengths`` are ignored).
       lengths: ``[N]`` valid steps per trajectory, each ``<= horizon``.
       horizon: the episode horizon H over which costs are averaged.
+      terminated: ``[N]`` bool, the trajectory ended by termination (a fall), not by a time-out or the data's end.
     Returns:
       ``[N, K]`` non-negative, lower-is-better costs in [0, 1].
     """
@@ -68,15 +71,18 @@ def engineered_costs(env: str, observations, lengths, horizon: int = 1000):
         raise ValueError(f"a trajectory is longer ({int(np.max(np.asarray(lengths)))}) than the horizon {horizon}")
     v = obs[..., list(cs.obs_index)]  # [N, T, K]
     lo, hi = jnp.asarray(cs.lo), jnp.asarray(cs.hi)
-    return horizon_average((hi - jnp.clip(v, lo, hi)) / (hi - lo), lengths, horizon)
+    return horizon_average((hi - jnp.clip(v, lo, hi)) / (hi - lo), lengths, horizon, terminated)
 
 
-def horizon_average(per_step, lengths, horizon: int):
-    """``f(xi) = 1/H (sum_{t < L} c(t) + (H - L))``: per-step costs ``[N, T, K]`` in [0, 1] averaged over the
-    horizon, every step not lived charged the worst cost 1 (module docstring). Returns ``[N, K]``."""
+def horizon_average(per_step, lengths, horizon: int, terminated):
+    """Per-step costs ``[N, T, K]`` in [0, 1] -> ``[N, K]`` trajectory features (module docstring): averaged over
+    the horizon with every step not lived charged the worst cost 1 for a terminated trajectory ``terminated
+    [N]``, averaged over the steps lived for one cut off."""
     valid = (jnp.arange(per_step.shape[1])[None, :] < lengths[:, None])[..., None]
     lived = jnp.sum(jnp.where(valid, per_step, 0.0), axis=1)
-    return (lived + (horizon - lengths)[:, None].astype(per_step.dtype)) / horizon
+    L = lengths[:, None].astype(per_step.dtype)
+    fell = jnp.asarray(terminated, bool)[:, None]
+    return jnp.where(fell, (lived + horizon - L) / horizon, lived / jnp.maximum(L, 1.0))
 
 
 def spearman(a, b) -> float:

@@ -63,9 +63,10 @@ class EvalResult:
         return {**out, "returns": self.returns.tolist(), "costs": self.costs.tolist()}
 
 
-def score_episodes(env: str, observations, lengths, rewards, *, horizon: int, demo_costs=None, beta=1.0,
+def score_episodes(env: str, observations, lengths, rewards, *, terminated, horizon: int, demo_costs=None, beta=1.0,
                    alpha_max=None, learned=None, demo_features=None) -> EvalResult:
-    """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored).
+    """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored),
+    ``terminated [n]`` (ended by a fall, else by the horizon: costs treat the two apart, :mod:`minsubdt_jax.costs`).
 
     With ``demo_costs [M, K]`` (the dataset's engineered features) each episode's min-subdominance (eq. 2, margin
     ``beta``, cap ``alpha_max``) against them is computed, and whether it beats their mean on every feature.
@@ -75,7 +76,7 @@ def score_episodes(env: str, observations, lengths, rewards, *, horizon: int, de
     lengths = np.asarray(lengths)
     valid = np.arange(np.shape(rewards)[1])[None, :] < lengths[:, None]
     returns = np.where(valid, np.asarray(rewards), 0.0).sum(1)
-    costs = np.asarray(engineered_costs(env, observations, lengths, horizon))
+    costs = np.asarray(engineered_costs(env, observations, lengths, horizon, terminated=terminated))
     ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized_score(env, returns), costs=costs,
                     cost_names=engineered_spec(env).names)
     if demo_costs is not None:
@@ -83,7 +84,7 @@ def score_episodes(env: str, observations, lengths, rewards, *, horizon: int, de
         ev.min_subdominance = np.asarray(min_subdominance(costs, demo_costs, beta, alpha_max=alpha_max).value)
         ev.beats_mean_demo = np.all(costs < demo_costs.mean(0), axis=1)
     if learned is not None:
-        feats = learned.features(observations, lengths)
+        feats = learned.features(observations, lengths, terminated)
         ev.learned_min_subdominance = np.asarray(
             min_subdominance(feats, np.asarray(demo_features), beta, alpha_max=alpha_max).value)
     return ev
@@ -118,7 +119,7 @@ def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int,
     ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
                        mesh=mesh)
     return [score_episodes(env, ro.observations[i, :num_episodes], ro.lengths[i, :num_episodes],
-                           ro.rewards[i, :num_episodes], horizon=horizon, demo_costs=demo_costs, beta=beta,
+                           ro.rewards[i, :num_episodes], terminated=ro.terminated[i, :num_episodes], horizon=horizon, demo_costs=demo_costs, beta=beta,
                            alpha_max=alpha_max, learned=None if learned is None else learned[i],
                            demo_features=None if demo_features is None else demo_features[i])
             for i in range(len(seeds))]

@@ -4,7 +4,7 @@ A Flax MLP ``f_psi: state -> [0, 1]^{K'}`` (sigmoid output, so the scale of the 
 per-step cost; a trajectory's features average it over the horizon ``H`` and charge every step it did not
 live the worst per-step cost, 1, exactly like the engineered features (``minsubdt_jax.costs``):
 
-    f_k(xi) = 1/H * ( sum_{t < L} f_psi,k(s_t) + (H - L) )
+    f_k(xi) = 1/H * ( sum_{t < L} f_psi,k(s_t) + (H - L) )     (terminated; a trajectory cut off: 1/L sum_{t<L})
 
 so ending an episode early can never make a trajectory cheaper. Preferences ``xi_i < xi_j`` (``j`` preferred)
 come from the trajectories' true returns (T-REX style: random pairs, the higher return preferred, optional
@@ -73,16 +73,17 @@ class CostParams:
     state_std: jax.Array
 
 
-def trajectory_features(net: CostNet, params: CostParams, observations, lengths, horizon: int):
+def trajectory_features(net: CostNet, params: CostParams, observations, lengths, terminated, horizon: int):
     """Learned trajectory features (module docstring).
 
     Args:
-      observations: ``[N, T, obs]`` padded states; lengths: ``[N]`` valid steps, each ``<= horizon``.
+      observations: ``[N, T, obs]`` padded states; lengths: ``[N]`` valid steps, each ``<= horizon``;
+      terminated: ``[N]`` ended by termination (else cut off: not charged for the steps it was not given).
     Returns:
       ``[N, K']`` features in ``[0, 1]``, lower is better.
     """
     per_step = net.apply(params.net, (observations - params.state_mean) / params.state_std)  # [N, T, K']
-    return horizon_average(per_step, lengths, horizon)
+    return horizon_average(per_step, lengths, horizon, terminated)
 
 
 def preference_loss(f_worse, f_better, alpha, beta):
@@ -124,30 +125,31 @@ class LearnedCosts:
     horizon: int
     report: dict
 
-    def features(self, observations, lengths):
+    def features(self, observations, lengths, terminated):
         return np.asarray(_features_jit(self.net, self.horizon)(self.params, jnp.asarray(observations),
-                                                                 jnp.asarray(lengths)))
+                                                                 jnp.asarray(lengths), jnp.asarray(terminated, bool)))
 
 
 @functools.lru_cache(maxsize=None)
 def _features_jit(net, horizon):
     """One compiled :func:`trajectory_features` per (net, horizon), reused by every ``features`` call."""
-    return jax.jit(lambda p, o, l: trajectory_features(net, p, o, l, horizon))
+    return jax.jit(lambda p, o, l, d: trajectory_features(net, p, o, l, d, horizon))
 
 
-def train_learned_costs(observations, lengths, returns, cfg: LearnedCostConfig, *, beta=1.0, horizon: int = 1000,
-                        state_mean=None, state_std=None, verbose: bool = False) -> LearnedCosts:
+def train_learned_costs(observations, lengths, returns, cfg: LearnedCostConfig, *, terminated, beta=1.0,
+                        horizon: int = 1000, state_mean=None, state_std=None, verbose: bool = False) -> LearnedCosts:
     """Learn ``f_psi`` and ``alpha`` by eq. 3 on pairs ranked by ``returns``; report held-out accuracy.
 
     Args:
       observations: ``[N, T, obs]`` padded trajectories; lengths ``[N]``; returns ``[N]`` true returns (used
-        only to rank pairs).
+        only to rank pairs); terminated ``[N]`` ended by termination (see :func:`trajectory_features`).
     Returns:
       :class:`LearnedCosts`; ``report`` has the training and held-out pair accuracy (share of pairs whose
       preferred trajectory has the lower subdominance against the other, ``c_bw < c_wb``) and the final loss.
     """
     observations = np.asarray(observations, np.float32)
     lengths = np.asarray(lengths)
+    terminated = np.asarray(terminated, bool)
     returns = np.asarray(returns)
     N = len(returns)
     if cfg.cost_dim < 1 or cfg.steps < 1 or cfg.pairs_per_step < 1 or not 0 <= cfg.label_noise < 0.5:
@@ -168,13 +170,13 @@ def train_learned_costs(observations, lengths, returns, cfg: LearnedCostConfig, 
     tx = optax.adam(cfg.learning_rate)
     trainable = lambda p: (p.net, p.log_alpha)  # noqa: E731
     opt_state = tx.init(trainable(params))
-    obs_j, len_j = jnp.asarray(observations), jnp.asarray(lengths)
+    obs_j, len_j, term_j = jnp.asarray(observations), jnp.asarray(lengths), jnp.asarray(terminated, bool)
     beta = jnp.asarray(beta, jnp.float32)
 
     def loss_fn(tp, p, w, b):
         p = p.replace(net=tp[0], log_alpha=tp[1])
         idx = jnp.concatenate([w, b])
-        f = trajectory_features(net, p, obs_j[idx], len_j[idx], horizon)
+        f = trajectory_features(net, p, obs_j[idx], len_j[idx], term_j[idx], horizon)
         return preference_loss(f[: w.shape[0]], f[w.shape[0]:], jnp.exp(p.log_alpha), beta)
 
     @jax.jit
@@ -202,7 +204,7 @@ def train_learned_costs(observations, lengths, returns, cfg: LearnedCostConfig, 
         if verbose:
             print(f"learned costs: step {done}/{cfg.steps}, eq. 3 loss {float(np.mean(ls)):.4f}", flush=True)
     model = LearnedCosts(net, params, horizon, {})
-    feats = model.features(observations, lengths)
+    feats = model.features(observations, lengths, terminated)
     alpha = np.exp(np.asarray(params.log_alpha))
     model.report = {
         "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},

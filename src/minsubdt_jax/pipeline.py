@@ -47,6 +47,7 @@ class Prepared:
         data, ms = self.source.data, self.min_subdominance
         out = {
             "path": self.source.path, "sha256": self.source.sha256, "timeouts_inferred": self.source.timeouts_inferred,
+            "dropped_transitions": self.source.dropped_transitions,
             "episodes": data.num_trajectories, "transitions": data.num_transitions,
             "return_mean": float(data.returns.mean()), "return_std": float(data.returns.std()),
             "normalized_score_mean": float(normalized_score(env, data.returns).mean()),
@@ -62,13 +63,19 @@ class Prepared:
         return out
 
 
-def prepare(cfg: Config, method: Method, verbose: bool = True) -> Prepared:
-    """Load (or record) ``cfg.dataset`` for ``cfg.env``, check it, and build ``method``'s training data.
+def load(cfg: Config, verbose: bool = True) -> DatasetFile:
+    """``cfg.dataset`` for ``cfg.env``: loaded, or recorded on first use (:func:`~minsubdt_jax.data.resolve_dataset`)."""
+    return resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions, horizon=cfg.episode_length,
+                           seed=cfg.dataset_seed, verbose=verbose)
+
+
+def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFile | None = None) -> Prepared:
+    """Load (or record) ``cfg.dataset`` for ``cfg.env`` (or take ``source``, already loaded), check it, and build
+    ``method``'s training data.
 
     Raises ValueError (before anything is written) on data that cannot be used: see the checks below and
     :func:`~minsubdt_jax.data.resolve_dataset`."""
-    source = resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions, horizon=cfg.episode_length,
-                             seed=cfg.dataset_seed, verbose=verbose)
+    source = load(cfg, verbose) if source is None else source
     dataset, path = source.data, source.path
     if dataset.max_len > cfg.episode_length:
         raise ValueError(f"the dataset has episodes of {dataset.max_len} steps, longer than --episode-length "
@@ -76,7 +83,8 @@ def prepare(cfg: Config, method: Method, verbose: bool = True) -> Prepared:
     if dataset.num_trajectories < 2:
         raise ValueError(f"{path}: the dataset has {dataset.num_trajectories} episode; min-subdominance scores each "
                          f"demonstration against the others and needs at least 2")
-    costs = np.asarray(engineered_costs(cfg.env, dataset.observations, dataset.lengths, cfg.episode_length))
+    costs = np.asarray(engineered_costs(cfg.env, dataset.observations, dataset.lengths, cfg.episode_length,
+                                        terminated=dataset.terminals))
     with np.errstate(over="ignore", invalid="ignore"):
         mean, std = dataset.state_stats()
     if not (np.isfinite(mean).all() and np.isfinite(std).all()):
@@ -87,9 +95,10 @@ def prepare(cfg: Config, method: Method, verbose: bool = True) -> Prepared:
     if method.features == "learned":
         lc_cfg = LearnedCostConfig(cost_dim=cfg.cost_dim, steps=cfg.cost_steps, pairs_per_step=cfg.cost_pairs,
                                    label_noise=cfg.cost_label_noise, seed=cfg.seed)
-        learned = train_learned_costs(dataset.observations, dataset.lengths, dataset.returns, lc_cfg, beta=cfg.beta,
-                                      horizon=cfg.episode_length, state_mean=mean, state_std=std)
-        features = learned.features(dataset.observations, dataset.lengths)
+        learned = train_learned_costs(dataset.observations, dataset.lengths, dataset.returns, lc_cfg,
+                                      terminated=dataset.terminals, beta=cfg.beta, horizon=cfg.episode_length,
+                                      state_mean=mean, state_std=std)
+        features = learned.features(dataset.observations, dataset.lengths, dataset.terminals)
     ms = np.asarray(min_subdominance(features, features, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True).value)
     rtg_scale = cfg.rtg_scale or method.rtg_scale
     target = method.target_return(dataset.returns) if cfg.target_return is None else cfg.target_return

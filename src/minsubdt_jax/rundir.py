@@ -136,7 +136,8 @@ def exit_code(run: Callable[[], object]) -> int:
 
 def plot_learning_curve(metrics_path: str, png_path: str) -> None:
     """From ``metrics.jsonl``: the training loss against step and, when the log holds evaluations, the normalised
-    score (mean over seeds, band from the lowest to the highest seed) and min-subdominance against step."""
+    score and min-subdominance against step, one line per method (mean over its seeds, band from the lowest to
+    the highest seed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -152,13 +153,18 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
     for ax, key, title in [(a, k, t) for a, (k, t) in zip(axes[0, 1:], [
             ("eval_normalized_score", "normalised score"), ("eval_min_subdominance", "min-subdominance vs demos")])]:
         steps = [r["step"] for r in evals]
-        v = np.array([r[key] for r in evals], float)  # [evaluations, seeds]
-        ax.plot(steps, v.mean(1), marker="o")
-        ax.fill_between(steps, v.min(1), v.max(1), alpha=0.25)
+        v = np.array([r[key] for r in evals], float)  # [evaluations, models]
+        names = evals[0].get("eval_method") or ["run"] * v.shape[1]
         final = [i for i, r in enumerate(evals) if r.get("final")]
-        ax.plot([steps[i] for i in final], v.mean(1)[final], "k*", markersize=10, label="final evaluation")
-        ax.set(xlabel="gradient step", title=f"{title} ({v.shape[1]} seed(s))")
-        ax.legend(loc="best", fontsize=8)
+        for name in dict.fromkeys(names):
+            cols = [j for j, n in enumerate(names) if n == name]
+            w = v[:, cols]
+            ax.plot(steps, w.mean(1), marker="o", label=name if len(set(names)) > 1 else None)
+            ax.fill_between(steps, w.min(1), w.max(1), alpha=0.25)
+            ax.plot([steps[i] for i in final], w.mean(1)[final], "k*", markersize=10)
+        ax.set(xlabel="gradient step", title=f"{title} (★ final; {v.shape[1] // len(set(names))} seed(s))")
+        if len(set(names)) > 1:
+            ax.legend(loc="best", fontsize=8)
     for ax in axes[0]:
         ax.grid(alpha=0.3)
     fig.tight_layout()

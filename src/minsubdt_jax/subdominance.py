@@ -81,7 +81,7 @@ def min_subdominance(
     G,
     beta=1.0,
     *,
-    alpha_max: float | None = None,
+    alpha_max=None,
     leave_one_out: bool = False,
     method: str = "exact",
     l2: float = 0.0,
@@ -96,7 +96,8 @@ def min_subdominance(
       F: ``[N, K]`` features of scored trajectories.
       G: ``[M, K]`` features of demonstrations.
       beta: margin, scalar or ``[K]``, every entry > 0.
-      alpha_max: optional upper bound on alpha.
+      alpha_max: optional upper bound on alpha, scalar or ``[K]`` (one per feature, e.g. ``beta / std_k`` so that
+        dominating a demo by the margin takes beating it by a standard deviation of that feature).
       leave_one_out: exclude pair ``(i, i)``; requires ``N == M`` (scoring the demo set itself) and M >= 2.
       method: ``"exact"`` — one bisection per row over the running means of the sorted demos;
         ``"optax"`` — Adam (optax) on ``log alpha``, ``steps`` steps. Both read the objective from the demos
@@ -117,9 +118,12 @@ def min_subdominance(
             raise ValueError(f"leave_one_out=True needs N == M (scoring the demo set), got N={F.shape[0]}, M={G.shape[0]}")
         if G.shape[0] < 2:
             raise ValueError("leave_one_out=True needs at least 2 demonstrations")
-    if alpha_max is not None and not alpha_max > 0:
-        raise ValueError(f"alpha_max must be > 0 or None, got {alpha_max}")
-    amax = jnp.inf if alpha_max is None else float(alpha_max)
+    if alpha_max is None:
+        amax = jnp.inf
+    else:
+        amax = np.asarray(alpha_max, F.dtype)
+        if amax.shape not in ((), (K,)) or not np.all(amax > 0):
+            raise ValueError(f"alpha_max must be None or > 0, a scalar or one per feature [K]=({K},), got {alpha_max}")
     if method == "exact":
         if l2:
             raise ValueError("l2 is only supported by method='optax'")

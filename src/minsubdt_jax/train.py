@@ -41,9 +41,9 @@ from .agents.base import PolicyInputs, init_seed_states, make_optimizer, make_tr
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
 from .evaluation import across_seeds, evaluate_policy
-from .methods import Method, get_method
+from .methods import get_method
 from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh, replicate)
-from .pipeline import Prepared, prepare
+from .pipeline import Prepared, load, prepare
 from .references import REFERENCE_SOURCE
 from .rundir import (DATASET_FILE, check_run_dir, check_same_data, exit_code, plot_learning_curve, progress,
                      truncate_metrics, write_atomic)
@@ -57,12 +57,13 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
           progress_fn: Callable[[int, dict], None] | None = None) -> dict:
     """Run one training job end to end in ``cfg.run_dir()``; returns the contents of ``results.json``.
 
-    ``cfg.seeds`` models (seeds ``cfg.seed ...``) train together; in a multi-process job (``cfg.num_processes``)
-    every process calls this, and only process 0 writes the run directory (checkpoints are written jointly by
-    orbax). ``progress_fn(step, record)`` (as brax's) receives every record written to ``metrics.jsonl``: the loss
-    after each chunk and each evaluation's scores."""
+    One model per method of ``cfg.methods`` and seed (``cfg.seed ...``, ``cfg.seeds`` of them), method-major, trains
+    in one program: they share the dataset and the agent, and differ in their return tokens and seeds. In a
+    multi-process job (``cfg.num_processes``) every process calls this, and only process 0 writes the run directory
+    (checkpoints are written jointly by orbax). ``progress_fn(step, record)`` (as brax's) receives every record
+    written to ``metrics.jsonl``: the loss after each chunk and each evaluation's scores (lists over the models)."""
     cfg = validate(cfg)
-    method = get_method(cfg.method)
+    methods = [get_method(m) for m in cfg.methods]
     init_distributed(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
     main = is_main_process()
     verbose = verbose and main
@@ -71,24 +72,30 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
     mesh = make_mesh(cfg.devices, cfg.batch_size)  # checked before anything is written
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
+    models = [(m, s) for m in methods for s in seeds]
     # before anything is written: bad data changes nothing. Only learned costs depend on the seed.
-    seed_cfgs = [dataclasses.replace(cfg, seed=s) for s in seeds] if method.features == "learned" else [cfg]
-    preps = [prepare(c, method, verbose) for c in seed_cfgs]
-    data = preps[0].sampler if len(preps) == 1 else jax.tree.map(lambda *x: jnp.stack(x), *[p.sampler for p in preps])
+    source = load(cfg, verbose)
+    preps = {}
+    for m, s in models:
+        key = (m.name, s if m.features == "learned" else None)
+        if key not in preps:
+            preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source)
+    per_model = [preps[(m.name, s if m.features == "learned" else None)] for m, s in models]
+    data, data_axis = stack_return_tokens(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
                                  "the training data (every process must load the same dataset)")
-    check_same_data(out, preps[0].source.sha256, resume)
+    check_same_data(out, source.sha256, resume)
     if main:
         os.makedirs(out, exist_ok=True)
         write_atomic(os.path.join(out, "config.json"), cfg.to_json())
-        d = preps[0].source
         write_atomic(os.path.join(out, DATASET_FILE), json.dumps(
-            {"path": d.path, "sha256": d.sha256, "episodes": d.data.num_trajectories,
-             "transitions": d.data.num_transitions}, indent=2))
-    dataset = preps[0].source.data
-    agent = make_agent(method.agent, cfg, dataset.obs_dim, dataset.act_dim, max(cfg.episode_length, dataset.max_len))
+            {"path": source.path, "sha256": source.sha256, "episodes": source.data.num_trajectories,
+             "transitions": source.data.num_transitions}, indent=2))
+    dataset = source.data
+    agent = make_agent(methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
+                       max(cfg.episode_length, dataset.max_len))
     tx = make_optimizer(cfg)
-    state = init_seed_states(agent, tx, seeds)
+    state = init_seed_states(agent, tx, [s for _, s in models])
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
     if resume and mngr.latest_step() is not None:
         state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
@@ -96,8 +103,9 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     if verbose and resume:
         print(f"resumed from step {start}", flush=True)
     state, data = replicate((state, data), mesh)
-    if verbose and (mesh.size > 1 or len(seeds) > 1):
-        print(f"{len(seeds)} seed(s) in one program; batch split over {mesh.size} device(s) in "
+    if verbose and (mesh.size > 1 or len(models) > 1):
+        print(f"{len(models)} model(s) ({len(methods)} method(s) x {len(seeds)} seed(s)) in one program; batch split "
+              f"over {mesh.size} device(s) in "
               f"{jax.process_count()} process(es): {cfg.batch_size // mesh.size} sequences each", flush=True)
     metrics_path = os.path.join(out, "metrics.jsonl")
     if main:
@@ -111,7 +119,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
             progress_fn(record["step"], record)
 
     def evaluate(params, episodes):
-        return evaluate_seeds(cfg, method, agent, params, preps, seeds, mesh, episodes)
+        return evaluate_models(cfg, agent, params, models, per_model, mesh, episodes)
 
     chunks = {}
     t0 = time.time()
@@ -120,8 +128,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     while step < cfg.steps:
         n = min(cfg.chunk_steps, cfg.steps - step)
         if n not in chunks:
-            chunks[n] = make_train_chunk(agent, tx, cfg.batch_size, n, mesh, seed_axis=True,
-                                         data_axis=None if len(preps) == 1 else 0)
+            chunks[n] = make_train_chunk(agent, tx, cfg.batch_size, n, mesh, seed_axis=True, data_axis=data_axis)
         tc = time.time()
         state, losses = chunks[n](state, data)
         per_seed = np.asarray(gather(losses)).mean(0)  # [S]
@@ -142,23 +149,32 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     mngr.wait_until_finished()
     train_seconds = time.time() - t0
 
-    results = {"config": dataclasses.asdict(cfg), "method": {"name": method.name, "label": method.label,
-                                                            "agent": method.agent},
-               "dataset": preps[0].summary(cfg.env), "references": REFERENCE_SOURCE, "platform": platform(),
-               "seeds": seeds, "train": {"steps": step, "steps_this_run": step - start, "seconds_this_run": train_seconds}}
-    if len(preps) > 1:
-        results["dataset"]["learned_costs_per_seed"] = [p.learned.report for p in preps]
+    describe = lambda m: {"name": m.name, "label": m.label, "agent": m.agent}  # noqa: E731
+    results = {"config": dataclasses.asdict(cfg), "dataset": per_model[0].summary(cfg.env),
+               "references": REFERENCE_SOURCE, "platform": platform(), "seeds": seeds,
+               "models": [{"method": m.name, "seed": s} for m, s in models],
+               "train": {"steps": step, "steps_this_run": step - start, "seconds_this_run": train_seconds}}
+    results.update({"method": describe(methods[0])} if len(methods) == 1 else {"methods": [describe(m) for m in methods]})
+    if len(preps) > 1:  # the models' own data summaries (min-subdominance on their features, learned costs)
+        results["dataset_per_model"] = [{k: v for k, v in p.summary(cfg.env).items() if k != "costs_sample"}
+                                        for p in per_model]
     if cfg.eval_episodes:
         te = time.time()
-        per_seed = evaluate(state.params, cfg.eval_episodes)
-        results["eval_per_seed"] = per_seed
-        results["eval"] = per_seed[0] if len(seeds) == 1 else across_seeds(per_seed)
-        results["eval"]["seconds"] = time.time() - te
-        log(eval_record(step, per_seed, final=True))
-        if verbose:
-            e = results["eval"]
-            over = "episodes" if len(seeds) == 1 else f"{len(seeds)} seeds"
-            print(f"eval: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
+        per = evaluate(state.params, cfg.eval_episodes)
+        results["eval_per_seed"] = per  # one entry per model (its method and seed inside)
+        by_method = {m.name: [e for e in per if e["method"] == m.name] for m in methods}
+        summary = {k: v[0] if len(v) == 1 else across_seeds(v) for k, v in by_method.items()}
+        for v in summary.values():
+            v["seconds"] = time.time() - te
+        if len(methods) == 1:
+            results["eval"] = summary[methods[0].name]
+        else:
+            results["eval_by_method"] = summary
+        log(eval_record(step, per, final=True))
+        for name, e in summary.items() if verbose else ():
+            over = (f"{cfg.eval_episodes} episodes" if len(seeds) == 1
+                    else f"{len(seeds)} seeds x {cfg.eval_episodes} episodes")
+            print(f"eval {name}: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
                   f"{e['normalized_score_mean']:.1f} ± {e['normalized_score_std']:.1f} over {over} "
                   f"({REFERENCE_SOURCE}), min-subdominance {e['min_subdominance_mean']:.3f} "
                   f"(dataset {results['dataset']['min_subdominance_mean']:.3f})")
@@ -170,27 +186,41 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     return results
 
 
-def evaluate_seeds(cfg: Config, method: Method, agent, params, preps: list[Prepared], seeds: list[int], mesh,
-                   episodes: int) -> list[dict]:
-    """Evaluate the S trained models (``params [S, ...]``) on ``episodes`` episodes each, in one batched MJX program
-    (episodes split over ``mesh``); seed s's episodes are seeded ``s + 10000``. One summary dict per seed."""
-    per = [preps[min(i, len(preps) - 1)] for i in range(len(seeds))]  # one prep per seed (shared unless learned)
-    stack = lambda get: np.stack([np.asarray(get(p), np.float32) for p in per])  # noqa: E731
+def stack_return_tokens(per_model: list[Prepared]):
+    """``(data, data_axis)`` for the train chunk: one model's sampler arrays, or, when the models' return tokens
+    differ (several methods, or learned costs per seed), the shared arrays with ``returns_to_go [M, N, T]``
+    stacked and a ``data_axis`` that maps only that field."""
+    first = per_model[0].sampler
+    if all(p is per_model[0] for p in per_model):
+        return first, None
+    data = first.replace(returns_to_go=jnp.stack([p.sampler.returns_to_go for p in per_model]))
+    return data, jax.tree.map(lambda _: None, first).replace(returns_to_go=0)
+
+
+def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Prepared], mesh,
+                    episodes: int) -> list[dict]:
+    """Evaluate the M trained models (``params [M, ...]``, ``models [(method, seed)]``) on ``episodes`` episodes
+    each, in one batched MJX program (episodes split over ``mesh``); a model of seed s has its episodes seeded
+    ``s + 10000``. One summary dict per model, with its method and seed."""
+    stack = lambda get: np.stack([np.asarray(get(p), np.float32) for p in per_model])  # noqa: E731
     inputs = PolicyInputs(params=params, state_mean=stack(lambda p: p.state_mean),
                           state_std=stack(lambda p: p.state_std), target_return=stack(lambda p: p.target_return),
                           rtg_scale=stack(lambda p: p.rtg_scale),
-                          subtract_rewards=np.full(len(seeds), method.subtract_rewards, np.float32))
-    learned = [p.learned for p in per] if method.features == "learned" else None
+                          subtract_rewards=np.array([m.subtract_rewards for m, _ in models], np.float32))
+    learned = [p.learned for p in per_model] if any(p.learned for p in per_model) else None
     evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
-                          seeds=[s + 10_000 for s in seeds], demo_costs=per[0].costs, beta=cfg.beta,
+                          seeds=[s + 10_000 for _, s in models], demo_costs=per_model[0].costs, beta=cfg.beta,
                           alpha_max=cfg.alpha_max, learned=learned,
-                          demo_features=[p.features for p in per] if learned else None, mesh=mesh)
-    return [dict(ev.summary(), seed=s, target_return=p.target_return) for ev, s, p in zip(evs, seeds, per)]
+                          demo_features=[p.features for p in per_model] if learned else None, mesh=mesh)
+    return [dict(ev.summary(), method=m.name, seed=s, target_return=p.target_return)
+            for ev, (m, s), p in zip(evs, models, per_model)]
 
 
 def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
-    """The ``metrics.jsonl`` record of one evaluation: per-seed normalised score, min-subdominance and return."""
-    rec = {"step": step, "eval_episodes": per_seed[0]["episodes"], "final": final}
+    """The ``metrics.jsonl`` record of one evaluation: per model, its method and normalised score, min-subdominance
+    and return."""
+    rec = {"step": step, "eval_episodes": per_seed[0]["episodes"], "final": final,
+           "eval_method": [e["method"] for e in per_seed]}
     for key in ("normalized_score", "min_subdominance", "return"):
         rec[f"eval_{key}"] = [e[f"{key}_mean"] for e in per_seed]
     return rec

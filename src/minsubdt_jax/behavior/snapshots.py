@@ -62,6 +62,20 @@ def load_replay_policies(env: str) -> list:
     return [load_snapshot(os.path.join(d, r["snapshot"]))[0] for r in load_manifest(env)["replay"]]
 
 
+def replay_weights(env: str) -> list[float]:
+    """The env steps that the random warm-up and each replay snapshot (:func:`load_replay_policies`) stand for in
+    SAC's replay buffer up to the medium checkpoint, D4RL's medium-replay: ``[random, snapshot_1, ...]``.
+
+    The warm-up took the first ``min_replay`` steps; after it, each step is given to the snapshot nearest in
+    training time (boundaries at the midpoints between snapshots), up to the medium step, the last snapshot. The
+    weights add up to the medium step."""
+    m = load_manifest(env)
+    warmup = float(m["training"]["config"]["min_replay"])
+    steps = [float(r["step"]) for r in m["replay"]]
+    edges = [warmup] + [(a + b) / 2 for a, b in zip(steps, steps[1:])] + [steps[-1]]
+    return [warmup] + [max(hi - lo, 0.0) for lo, hi in zip(edges, edges[1:])]
+
+
 def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int):
     """``(run, params)``: the cached jitted rollout of the stochastic actor ``actor_params`` (``None``: uniform
     random actions) over ``episodes`` parallel episodes, and the parameters to call it with."""

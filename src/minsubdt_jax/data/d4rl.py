@@ -29,6 +29,7 @@ class DatasetFile:
       sha256: content hash of ``data`` (:meth:`Trajectories.sha256`): what a run records and a resume compares.
       env: the environment named in the file (files written here), else ``None``.
       timeouts_inferred: the file had no ``timeouts`` (D4RL v0); they were inferred from the horizon.
+      dropped_transitions: transitions after the file's last episode end (an unfinished episode), not loaded.
     """
 
     data: Trajectories
@@ -36,6 +37,7 @@ class DatasetFile:
     sha256: str
     env: str | None = None
     timeouts_inferred: bool = False
+    dropped_transitions: int = 0
 
 
 def open_d4rl(path, horizon: int = 1000) -> DatasetFile:
@@ -66,7 +68,7 @@ def open_d4rl(path, horizon: int = 1000) -> DatasetFile:
     if stored is not None and stored != digest:
         raise DatasetError(f"{path}: the file is damaged: its contents do not match the checksum it was written "
                            f"with (sha256 {stored[:12]}…, read {digest[:12]}…)")
-    return DatasetFile(data, path, digest, env, inferred)
+    return DatasetFile(data, path, digest, env, inferred, len(arrays["rewards"]) - data.num_transitions)
 
 
 def load_d4rl(path, horizon: int = 1000) -> Trajectories:

@@ -110,7 +110,8 @@ def infer_timeouts(terminals, horizon: int) -> np.ndarray:
 def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
     """Split D4RL flat arrays into episodes on ``terminals | timeouts``, after validating them.
 
-    A trailing segment with neither flag is kept as a final (time-out-like) episode.
+    A trailing segment with neither flag (an episode the recording stopped inside) is dropped, as the official
+    DT loader does: it neither fell nor reached the time limit, so its return and costs would mislead.
 
     Raises:
       DatasetError: missing keys, mismatched lengths, wrong ranks or dtypes, values that are not finite once in
@@ -150,8 +151,8 @@ def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
                                f"first {rows[:5].tolist()}")
     ends = a["terminals"].astype(bool) | a["timeouts"].astype(bool)
     stops = np.nonzero(ends)[0] + 1
-    if len(stops) == 0 or stops[-1] != n:
-        stops = np.append(stops, n)
+    if len(stops) == 0:
+        raise DatasetError(f"{source}: no episode ends: neither 'terminals' nor 'timeouts' is ever set")
     starts = np.concatenate([[0], stops[:-1]])
     lengths = (stops - starts).astype(np.int32)
     T = int(lengths.max())

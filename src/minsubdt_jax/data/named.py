@@ -6,8 +6,9 @@
 * ``random``: uniformly random actions;
 * ``medium`` / ``expert``: the committed medium / expert SAC snapshot, actions sampled from the stochastic
   policy (as D4RL did);
-* ``medium-replay``: equal shares of transitions from the random policy (SAC's warm-up) and from each
-  committed snapshot of training up to medium, standing in for D4RL's replay buffer;
+* ``medium-replay``: D4RL's replay buffer up to the medium checkpoint, rebuilt from the committed snapshots of
+  that training: the random policy (SAC's warm-up) and each snapshot record shares of the transitions in
+  proportion to the env steps they stand for (:func:`~minsubdt_jax.behavior.snapshots.replay_weights`);
 * ``medium-expert``: ``medium`` ∪ ``expert`` (each of ``transitions``, so twice the size, as in D4RL).
 
 Episodes are whole (``horizon`` steps unless terminated) and collected in batches until at least
@@ -27,7 +28,7 @@ import time
 import jax
 import numpy as np
 
-from ..behavior.snapshots import load_policy, load_replay_policies, make_policy_rollout
+from ..behavior.snapshots import load_policy, load_replay_policies, make_policy_rollout, replay_weights
 from ..caches import cache_dir
 from ..envs import check_dataset, env_spec
 from ..evaluation import score_episodes
@@ -35,13 +36,16 @@ from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
 
 NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
+# a recipe that changed gets a new file name, so no cache file recorded the old way stands in for the new one
+RECIPE_VERSION = {"medium-replay": 2}
 DEFAULT_TRANSITIONS = 100_000
 MAX_BATCH = 128  # episodes per jitted rollout call (at most)
 
 
 def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: int) -> str:
+    version = f"-v{RECIPE_VERSION[dataset]}" if dataset in RECIPE_VERSION else ""
     return os.path.join(cache_dir(), "datasets",
-                        f"{env_spec(env).name}-{dataset}-t{transitions}-h{horizon}-s{seed}.hdf5")
+                        f"{env_spec(env).name}-{dataset}{version}-t{transitions}-h{horizon}-s{seed}.hdf5")
 
 
 def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None) -> tuple[Trajectories, dict]:
@@ -76,18 +80,19 @@ def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, hor
     from tqdm import tqdm
 
     if dataset == "random":
-        policies = [None]
+        policies, weights = [None], [1.0]
     elif dataset in ("medium", "expert"):
-        policies = [load_policy(env, dataset)]
+        policies, weights = [load_policy(env, dataset)], [1.0]
     elif dataset == "medium-replay":
-        policies = [None, *load_replay_policies(env)]
+        policies, weights = [None, *load_replay_policies(env)], replay_weights(env)
     else:
         raise DatasetError(f"cannot record {dataset!r} directly; choose one of {list(NAMED_DATASETS)}")
-    share = math.ceil(transitions / len(policies))
+    shares = [math.ceil(transitions * w / sum(weights)) for w in weights]
     rng = jax.random.PRNGKey(seed)
-    with tqdm(total=share * len(policies), disable=not verbose, unit="transition", unit_scale=True,
+    with tqdm(total=sum(shares), disable=not verbose, unit="transition", unit_scale=True,
               desc=f"{env_spec(env).name}/{dataset}", dynamic_ncols=True, mininterval=1.0) as bar:
-        parts = [collect(env, p, share, horizon, jax.random.fold_in(rng, j), bar) for j, p in enumerate(policies)]
+        parts = [collect(env, p, n, horizon, jax.random.fold_in(rng, j), bar)
+                 for j, (p, n) in enumerate(zip(policies, shares))]
     return concatenate([d for d, _ in parts]), {k: np.concatenate([i[k] for _, i in parts]) for k in parts[0][1]}
 
 
@@ -167,7 +172,8 @@ def _lock(path: str):
 def summary(env: str, data: Trajectories, horizon: int = 1000) -> dict:
     """Episodes, transitions, return, normalised score and engineered cost means of a dataset, scored as any
     policy's episodes are (:func:`minsubdt_jax.evaluation.score_episodes`)."""
-    s = score_episodes(env, data.observations, data.lengths, data.rewards, horizon=max(horizon, data.max_len)).summary()
+    s = score_episodes(env, data.observations, data.lengths, data.rewards, terminated=data.terminals,
+                       horizon=max(horizon, data.max_len)).summary()
     keep = ("return_mean", "return_std", "normalized_score_mean", "normalized_score_std", "length_mean", "costs_mean")
     return {"episodes": data.num_trajectories, "transitions": data.num_transitions, **{k: s[k] for k in keep}}
 
