@@ -18,6 +18,8 @@ Designs (z only for hopper and walker):
 * ``x+z-speed``: the z feature is vertical *slowness*, ``1 - min(|v_z|, hi) / hi`` per step: cost falls with
   vertical speed, as the x cost falls with forward speed ("how slow did the robot move", in each direction);
 * ``x+z-bounce``: the opposite reading, ``min(|v_z|, hi) / hi``: cost rises with vertical motion;
+* ``x+fell``: the second feature keeps only what all the z designs share, the steps not lived: ``(H - L) / H``
+  for a trajectory that fell, 0 otherwise (per-step cost 0 while upright);
 * each of the three with ``alpha <= beta/std``: each feature's alpha capped at ``beta / std_k`` (std over the
   demos): to dominate a demo by the margin, a trajectory must beat it by a standard deviation of that feature.
 
@@ -32,23 +34,23 @@ import os
 
 import numpy as np
 
-from minsubdt_jax.costs import engineered_costs, engineered_spec, horizon_average, spearman
+from minsubdt_jax.costs import engineered_costs, horizon_average, spearman
 from minsubdt_jax.data import resolve_dataset
+from minsubdt_jax.envs import env_spec
 from minsubdt_jax.subdominance import min_subdominance
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
-Z_DESIGNS = ("z", "z-speed", "z-bounce")
+Z_HI = 2.0  # m/s: the clip range [-2, 2] of the z-velocity cost as first built
+Z_DESIGNS = ("z", "z-speed", "z-bounce", "fell")
 DESIGNS = ("x",) + tuple(f"x+{z}{cap}" for z in Z_DESIGNS for cap in ("", ", alpha <= beta/std"))
 
 
 def z_cost(env: str, data, horizon: int, kind: str):
-    """``[N]`` the z feature of one design, falls charged the worst cost 1 for the steps not lived."""
-    spec = engineered_spec(env)
-    if kind == "z":
-        return np.asarray(engineered_costs(env, data.observations, data.lengths, horizon,
-                                          terminated=data.terminals))[:, 1]
-    speed = np.clip(np.abs(data.observations[..., spec.obs_index[1]]) / spec.hi[1], 0, 1)
-    per_step = 1 - speed if kind == "z-speed" else speed
+    """``[N]`` the second feature of one design, falls charged the worst cost 1 for the steps not lived."""
+    vz = data.observations[..., env_spec(env).z_velocity_index]
+    speed = np.clip(np.abs(vz) / Z_HI, 0, 1)
+    per_step = {"z": (Z_HI - np.clip(vz, -Z_HI, Z_HI)) / (2 * Z_HI), "z-speed": 1 - speed, "z-bounce": speed,
+                "fell": 0 * speed}[kind]
     return np.asarray(horizon_average(per_step[..., None], data.lengths, horizon, data.terminals))[:, 0]
 
 
@@ -62,10 +64,12 @@ def design_features(env: str, design: str, data, horizon: int):
 
 
 def analyse(env: str, dataset: str, transitions: int, horizon: int = 1000) -> dict:
-    data = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, verbose=True).data
+    f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, verbose=True)
+    data = f.data
     R = data.returns
     alive = ~data.terminals
-    out = {"env": env, "dataset": dataset, "episodes": data.num_trajectories, "never_fell": int(alive.sum()),
+    out = {"env": env, "dataset": dataset, "file": os.path.basename(f.path), "sha256": f.sha256,
+           "episodes": data.num_trajectories, "never_fell": int(alive.sum()),
            "designs": {}}
     for design in DESIGNS:
         if env == "halfcheetah" and design != "x":
@@ -87,14 +91,19 @@ def markdown(rows: list[dict]) -> str:
     lines = ["# Engineered cost features: rank agreement with the true return", "",
              "Spearman correlation with the true return of −min-subdominance (eq. 2, leave-one-out, β = 1) and of "
              "each feature's part of it, over all episodes / over the episodes that never fell. Regenerate: "
-             "`python experiments/cost_features.py` (designs in its docstring).", "",
-             "| env | dataset | episodes (never fell) | design | total | x part | z part |", "|---|---|---|---|---|---|---|"]
+             "`python experiments/cost_features.py` (designs in its docstring). '–': no episode of that kind, or a "
+             "constant part (no information). The library's engineered costs are `x+fell` "
+             "(`minsubdt_jax.costs`): the only design whose total never ranks worse than x alone, over all episodes "
+             "or over those that never fell.", "",
+             "| env | dataset | episodes (never fell) | design | total | x part | second feature's part |", "|---|---|---|---|---|---|---|"]
     for r in rows:
         for design, d in r["designs"].items():
             pf, pa = d["per_feature"], d["per_feature_never_fell"]
             z = f"{fmt(pf[1])} / {fmt(pa[1])}" if len(pf) > 1 else "–"
             lines.append(f"| {r['env']} | {r['dataset']} | {r['episodes']} ({r['never_fell']}) | {design} | "
                          f"{fmt(d['total'])} / {fmt(d['total_never_fell'])} | {fmt(pf[0])} / {fmt(pa[0])} | {z} |")
+    lines += ["", "Dataset files (recorded by `python -m minsubdt_jax.data` on this machine; sha256 of the episodes):", ""]
+    lines += [f"- {r['env']} {r['dataset']}: `{r['file']}` ({r['sha256'][:16]})" for r in rows]
     return "\n".join(lines) + "\n"
 
 

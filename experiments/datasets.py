@@ -2,6 +2,8 @@
 
     python experiments/datasets.py                       # 3 envs x 5 datasets, 100k transitions each
     python experiments/datasets.py --envs hopper --transitions 1000000
+    python experiments/datasets.py --datasets medium-replay   # re-record only these; other rows are kept
+    python experiments/datasets.py --datasets medium-replay --cached   # tabulate the cached files, no timing
 
 Writes ``experiments/results/datasets.{json,md}`` and ``experiments/results/behavior_curves.png``. Datasets are
 recorded into the user cache (``python -m minsubdt_jax.data`` uses the same files); existing files are
@@ -45,31 +47,61 @@ def plot_curves(envs, png):
     plt.close(fig)
 
 
+def seconds(row) -> str:
+    return "–" if row["seconds"] is None else f"{row['seconds']:.0f}"
+
+
+def file_cell(row) -> str:
+    if "file" not in row:
+        return "not recorded (a recording made before files were named in this table)"
+    return f"{row['file']} ({row['sha256'][:12]})"
+
+
+def kept_rows(a) -> list[dict]:
+    """The rows of the existing ``datasets.json`` that this call does not record again (same size and seed)."""
+    path = os.path.join(HERE, "datasets.json")
+    if not os.path.exists(path):
+        return []
+    with open(path) as f:
+        old = json.load(f)
+    if (old["transitions"], old["seed"]) != (a.transitions, a.seed):
+        return []
+    return [r for r in old["rows"] if not (r["env"] in a.envs and r["dataset"] in a.datasets)]
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
     p.add_argument("--transitions", type=int, default=DEFAULT_TRANSITIONS)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--datasets", nargs="+", default=list(NAMED_DATASETS), choices=NAMED_DATASETS)
+    p.add_argument("--cached", action="store_true", help="use files already in the cache (no generation time)")
     a = p.parse_args()
     os.makedirs(HERE, exist_ok=True)
-    rows = []
+    rows = kept_rows(a)
     for env in a.envs:
-        for ds in NAMED_DATASETS:
+        for ds in a.datasets:
             path = dataset_path(env, ds, a.transitions, 1000, a.seed)
-            if os.path.exists(path):
+            if os.path.exists(path) and not a.cached:
                 os.remove(path)
             t0 = time.time()
-            data = resolve_dataset(env, ds, transitions=a.transitions, seed=a.seed, verbose=False).data
-            rows.append({"env": env, "dataset": ds, **summary(env, data), "seconds": time.time() - t0})
+            f = resolve_dataset(env, ds, transitions=a.transitions, seed=a.seed, verbose=False)
+            rows.append({"env": env, "dataset": ds, **summary(env, f.data), "seconds": None if a.cached else time.time() - t0,
+                         "file": os.path.basename(f.path), "sha256": f.sha256})
             r = rows[-1]
             print(f"{env:12s} {ds:14s} {r['episodes']:6d} {r['transitions']:8d} {r['return_mean']:8.1f} ± "
-                  f"{r['return_std']:7.1f} {r['normalized_score_mean']:6.1f} {r['seconds']:6.1f} s", flush=True)
+                  f"{r['return_std']:7.1f} {r['normalized_score_mean']:6.1f} {r['seconds'] or 0:6.1f} s", flush=True)
+    order = {(e, d): i for i, (e, d) in enumerate((e, d) for e in ("hopper", "walker", "halfcheetah")
+                                                   for d in NAMED_DATASETS)}
+    rows.sort(key=lambda r: order[r["env"], r["dataset"]])
     with open(os.path.join(HERE, "datasets.json"), "w") as f:
         json.dump({"transitions": a.transitions, "seed": a.seed, "rows": rows}, f, indent=1)
-    lines = ["| env | dataset | episodes | transitions | return (mean ± std) | normalised score | generation (s) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| env | dataset | episodes | transitions | return (mean ± std) | normalised score | generation (s) | "
+             "file (sha256) |", "|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['env']} | {r['dataset']} | {r['episodes']} | {r['transitions']} | {r['return_mean']:.1f} ± "
-              f"{r['return_std']:.1f} | {r['normalized_score_mean']:.1f} | {r['seconds']:.0f} |" for r in rows]
+              f"{r['return_std']:.1f} | {r['normalized_score_mean']:.1f} | "
+              f"{seconds(r)} | "
+              f"{file_cell(r)} |" for r in rows]
     with open(os.path.join(HERE, "datasets.md"), "w") as f:
         f.write("\n".join(lines) + "\n")
     plot_curves(a.envs, os.path.join(HERE, "behavior_curves.png"))

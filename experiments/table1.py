@@ -210,9 +210,15 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
                        "heldout_pair_accuracy": ds["learned_costs"]["heldout_pair_accuracy"]})
     demo = {f"{d}/{e}": next((r["r"]["dataset"]["normalized_score_mean"] for r in rows
                               if r["dataset"] == d and r["env"] == e), None) for d in DATASETS for e in ENVS}
+    files = {}
+    for row in rows:  # which recording of each dataset the runs used (the file name holds the recipe version)
+        ds = row["r"]["dataset"]
+        files.setdefault(f"{row['dataset']}/{row['env']}", set()).add(
+            (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"])))
+    files = {k: [{"file": f, "sha256": h, "cost_features": c} for f, h, c in sorted(v)] for k, v in files.items()}
     episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
     out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
-           "cost_rank_agreement": costs,
+           "cost_rank_agreement": costs, "data_files": files,
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": v for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
     with open(os.path.join(out_root, "table1.json"), "w") as f:
@@ -241,6 +247,10 @@ def markdown(out: dict) -> str:
              f"training seeds present (their count in brackets), {out.get('eval_episodes', '?')} evaluation "
              f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
              f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
+             *([] if out["preset"] == "paper" else [
+                 f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
+                 "(README, *What the presets are for*); the `paper` preset is. See *Data* below for the dataset "
+                 "files and cost features these runs used.", ""]),
              "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
 
     def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"
@@ -256,7 +266,8 @@ def markdown(out: dict) -> str:
             "–" if av[m]["mean"] is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
             for m in METHODS) + " |")
     lines += ["", "## Better than demonstrated?", "",
-              "Share of evaluation rollouts whose engineered cost features are all below the dataset's mean demo, "
+              "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
+              "(none above it, one below), "
               "and the rollouts' min-subdominance (eq. 2, engineered features) against the demos (lower is "
               "better); mean over seeds.", "",
               "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
@@ -267,7 +278,8 @@ def markdown(out: dict) -> str:
               "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
               "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
               "and the learned costs' held-out preference accuracy (pairs among the 20 % of trajectories "
-              "held out of training).", "",
+              "held out of training). Per feature, over all episodes and over those that never fell, for the "
+              "designs considered: [cost_features.md](cost_features.md).", "",
               "| dataset | env | engineered: Spearman | learned: Spearman | learned: held-out pair accuracy |",
               "|---|---|---|---|---|"]
 
@@ -279,6 +291,15 @@ def markdown(out: dict) -> str:
         return f"{'–' if eng is None else f'{eng:.3f}'} | {sp} | {acc}"
 
     lines += cells(agreement)
+    lines += ["", "## Data", "",
+              "The dataset file(s) the runs of each cell used (the name holds the recording recipe; hash of the "
+              "episodes, where the run recorded it) and their engineered cost features. A cell whose file is not "
+              "today's `python -m minsubdt_jax.data` recording, or whose features are not today's "
+              "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
+              "| dataset | env | file (sha256): cost features |", "|---|---|---|"]
+    lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}" for x in
+                                             out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
+              for d in DATASETS for e in ENVS]
     lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
               "Not comparable one to one with the table above: other physics, other behaviour policies, other "
               "references, 100k training steps. For orientation only.", "",

@@ -1,17 +1,31 @@
 """Engineered trajectory cost metrics (seed, "Experiments") and their rank agreement with true returns.
 
 The seed uses x-velocity for HalfCheetah and x- and z-velocities for Hopper and Walker, "monotonically
-transformed into cost metrics". Our transform, per feature k with velocity ``v_k(t)`` read from the state:
+transformed into cost metrics". Our features, each lower-is-better and in [0, 1]:
 
-    c_k(t) = (hi_k - clip(v_k(t), lo_k, hi_k)) / (hi_k - lo_k)        in [0, 1], decreasing in v_k
-    f_k(xi) = 1/H * ( sum_{t < L} c_k(t) + (H - L) * 1 )      if xi terminated (fell)
-    f_k(xi) = 1/L *   sum_{t < L} c_k(t)                       if it was cut off (time-out, end of data)
+``x_velocity`` (all envs), with per-step cost ``c(t) = (hi - clip(v_x(t), lo, hi)) / (hi - lo)``:
 
-``H`` is the episode horizon (1000) and ``L`` the trajectory's length: the steps a terminated trajectory did not
-live are charged the worst per-step cost (1), so falling over early never looks cheap; a trajectory cut off
-before the horizon without falling is charged for what it did, not for the steps it was not given. Both features are
-lower-is-better and lie in [0, 1]. For the z-velocity feature note that, along any periodic gait, the mean
-z-velocity is near 0 (c ~ 0.5), so in practice it charges mostly for the horizon not lived.
+    f_x(xi) = 1/H * ( sum_{t < L} c(t) + (H - L) * 1 )      if xi terminated (fell)
+    f_x(xi) = 1/L *   sum_{t < L} c(t)                       if it was cut off (time-out, end of data)
+
+``fall`` (hopper, walker: the envs that terminate), the z-velocity feature reduced to what it measures:
+
+    f_fall(xi) = (H - L) / H   if xi terminated,   0 if it was cut off
+
+``H`` is the episode horizon (1000) and ``L`` the trajectory's length. A terminated trajectory is charged the worst
+per-step cost for every step it did not live, so falling early never looks cheap; one cut off before the horizon
+is charged for what it did, not for the steps it was not given.
+
+Why ``fall`` and not a z-velocity: along any gait the mean vertical velocity is ~0, so a cost of the signed
+z-velocity is constant up to noise over the steps lived and carries information only through the horizon not
+lived. Min-subdominance is scale-free in each feature (alpha >= 0 is free), so that
+noise counted as much as x: among episodes that never fell its part of min-subdominance correlated with the return
+at -0.46 (hopper medium-expert), and the total's Spearman with the return fell from 1.00 (x alone) to 0.43. Every
+per-step transform of v_z tried (signed, ``|v_z|`` as a cost or as a reward, with and without a cap
+``alpha <= beta/std``) ranked the never-fell episodes worse than x alone on walker medium or hopper
+medium-expert. With ``fall`` the total ranks as well as x alone or better on all six hopper/walker datasets
+(never-fell episodes rank exactly as with x alone: tested), and its part of min-subdominance correlates with the
+return at +0.74 to +0.92 (``experiments/results/cost_features.md``, ``python experiments/cost_features.py``).
 """
 
 from __future__ import annotations
@@ -27,12 +41,18 @@ from .envs import env_spec
 
 @dataclass(frozen=True)
 class CostSpec:
-    """Velocity features of one env: observation indices and the clip range ``[lo, hi]`` of each."""
+    """Cost features of one env: the velocity features (observation index and clip range ``[lo, hi]`` of each),
+    then, if ``fall``, the fall feature."""
 
-    names: tuple[str, ...]
+    velocity_names: tuple[str, ...]
     obs_index: tuple[int, ...]
     lo: tuple[float, ...]
     hi: tuple[float, ...]
+    fall: bool
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.velocity_names + (("fall",) if self.fall else ())
 
     @property
     def dim(self) -> int:
@@ -40,14 +60,11 @@ class CostSpec:
 
 
 def engineered_spec(env: str) -> CostSpec:
-    """Cost features of ``env``: x-velocity (all), z-velocity (hopper, walker). Clip ranges cover the speeds
-    of random to expert gaits (m/s)."""
+    """Cost features of ``env``: x-velocity (all; the clip range covers random to expert gaits, m/s) and, for the
+    envs that terminate (hopper, walker), the fall feature."""
     spec = env_spec(env)
     x_hi = {"hopper": 4.0, "walker": 6.0, "halfcheetah": 15.0}[spec.name]
-    if spec.z_velocity_index is None:
-        return CostSpec(("x_velocity",), (spec.x_velocity_index,), (-1.0,), (x_hi,))
-    return CostSpec(("x_velocity", "z_velocity"), (spec.x_velocity_index, spec.z_velocity_index), (-1.0, -2.0),
-                    (x_hi, 2.0))
+    return CostSpec(("x_velocity",), (spec.x_velocity_index,), (-1.0,), (x_hi,), fall=spec.terminates)
 
 
 def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, terminated):
@@ -60,7 +77,7 @@ def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, te
       horizon: the episode horizon H over which costs are averaged.
       terminated: ``[N]`` bool, the trajectory ended by termination (a fall), not by a time-out or the data's end.
     Returns:
-      ``[N, K]`` non-negative, lower-is-better costs in [0, 1].
+      ``[N, K]`` non-negative, lower-is-better costs in [0, 1], in the order of ``engineered_spec(env).names``.
     """
     cs = engineered_spec(env)
     obs = jnp.asarray(observations)
@@ -69,9 +86,12 @@ def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, te
         raise ValueError(f"need observations [N, T, obs] and lengths [N], got {obs.shape} and {lengths.shape}")
     if not isinstance(lengths, jax.core.Tracer) and np.any(np.asarray(lengths) > horizon):
         raise ValueError(f"a trajectory is longer ({int(np.max(np.asarray(lengths)))}) than the horizon {horizon}")
-    v = obs[..., list(cs.obs_index)]  # [N, T, K]
+    v = obs[..., list(cs.obs_index)]  # [N, T, Kv]
     lo, hi = jnp.asarray(cs.lo), jnp.asarray(cs.hi)
-    return horizon_average((hi - jnp.clip(v, lo, hi)) / (hi - lo), lengths, horizon, terminated)
+    per_step = (hi - jnp.clip(v, lo, hi)) / (hi - lo)
+    if cs.fall:  # per-step cost 0 while upright: only the steps not lived count
+        per_step = jnp.concatenate([per_step, jnp.zeros_like(per_step[..., :1])], axis=-1)
+    return horizon_average(per_step, lengths, horizon, terminated)
 
 
 def horizon_average(per_step, lengths, horizon: int, terminated):

@@ -39,6 +39,11 @@ class EnvSpec:
     z_velocity_index: int | None
     reset_obs0: float
 
+    @property
+    def terminates(self) -> bool:
+        """Episodes end early when the body falls (hopper, walker); halfcheetah runs to the time limit."""
+        return self.name in ("hopper", "walker")
+
 
 # reset_obs0 measured as the mean obs[0] of 64 brax MJX resets: 1.25 ± 0.003 (hopper, walker), 0.00 ± 0.06
 # (halfcheetah); gym's resets (D4RL) have the same values.

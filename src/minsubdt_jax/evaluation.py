@@ -31,7 +31,7 @@ from .subdominance import min_subdominance
 class EvalResult:
     """Per-episode results (numpy): returns ``[n]``, lengths ``[n]``, normalized ``[n]``, costs ``[n, K]``
     (engineered cost features); with demos: min_subdominance ``[n]`` against the demos' engineered features and
-    beats_mean_demo ``[n]`` (every engineered feature below the demos' mean); for learned costs,
+    beats_mean_demo ``[n]`` (dominates the demos' mean: no engineered feature above it, one below); for learned costs,
     learned_min_subdominance ``[n]`` against the demos' learned features."""
 
     returns: np.ndarray
@@ -82,7 +82,8 @@ def score_episodes(env: str, observations, lengths, rewards, *, terminated, hori
     if demo_costs is not None:
         demo_costs = np.asarray(demo_costs)
         ev.min_subdominance = np.asarray(min_subdominance(costs, demo_costs, beta, alpha_max=alpha_max).value)
-        ev.beats_mean_demo = np.all(costs < demo_costs.mean(0), axis=1)
+        mean = demo_costs.mean(0)  # dominates the mean demo: no worse on any feature, better on one
+        ev.beats_mean_demo = np.all(costs <= mean, axis=1) & np.any(costs < mean, axis=1)
     if learned is not None:
         feats = learned.features(observations, lengths, terminated)
         ev.learned_min_subdominance = np.asarray(
