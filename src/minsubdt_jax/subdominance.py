@@ -118,12 +118,10 @@ def min_subdominance(
             raise ValueError(f"leave_one_out=True needs N == M (scoring the demo set), got N={F.shape[0]}, M={G.shape[0]}")
         if G.shape[0] < 2:
             raise ValueError("leave_one_out=True needs at least 2 demonstrations")
-    if alpha_max is None:
-        amax = jnp.inf
-    else:
-        amax = np.asarray(alpha_max, F.dtype)
-        if amax.shape not in ((), (K,)) or not np.all(amax > 0):
-            raise ValueError(f"alpha_max must be None or > 0, a scalar or one per feature [K]=({K},), got {alpha_max}")
+    amax = np.asarray(np.inf if alpha_max is None else alpha_max, F.dtype)
+    if amax.shape not in ((), (K,)) or not np.all(amax > 0):
+        raise ValueError(f"alpha_max must be None or > 0, a scalar or one per feature [K]=({K},), got {alpha_max}")
+    amax = np.broadcast_to(amax, (K,))  # one signature for every form of the cap: one compile per shape
     if method == "exact":
         if l2:
             raise ValueError("l2 is only supported by method='optax'")
