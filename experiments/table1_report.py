@@ -1,0 +1,141 @@
+"""Table 1's report: the markdown of ``experiments/results/table1.md`` and the cost-feature plots, from the
+aggregate that ``experiments/table1.py`` computes. The seed's published numbers live here too."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from minsubdt_jax.methods import METHODS as ALL_METHODS
+
+ENVS = ("halfcheetah", "hopper", "walker")
+DATASETS = ("medium-expert", "medium", "medium-replay")
+METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
+METHOD_NAMES = {m: ALL_METHODS[m].label for m in METHODS}
+
+# Seed Table 1 (gym/D4RL v2 datasets, normalised by D4RL's references): not comparable one to one with ours.
+PUBLISHED = {
+    (d, e): dict(zip(METHODS, v)) for (d, e), v in {
+        ("medium-expert", "halfcheetah"): (89.5, 86.8, 87.0, 59.9),
+        ("medium-expert", "hopper"): (110.7, 110.8, 107.6, 79.6),
+        ("medium-expert", "walker"): (108.1, 108.5, 108.1, 36.6),
+        ("medium", "halfcheetah"): (41.3, 40.9, 42.6, 43.1),
+        ("medium", "hopper"): (56.8, 55.8, 67.6, 63.9),
+        ("medium", "walker"): (70.4, 74.9, 74.0, 77.3),
+        ("medium-replay", "halfcheetah"): (32.3, 31.8, 36.6, 4.3),
+        ("medium-replay", "hopper"): (40.5, 37.1, 82.7, 27.6),
+        ("medium-replay", "walker"): (37.1, 36.0, 66.6, 36.9),
+    }.items()
+}
+
+
+def _cell(entry) -> str:
+    """``mean ± std (seeds)``; one seed has no spread to show, so it says so instead of "± 0.0"."""
+    if entry is None:
+        return "–"
+    if entry["n_seeds"] == 1:
+        return f"{entry['mean']:.1f} (1 seed)"
+    return f"{entry['mean']:.1f} ± {entry['std']:.1f} ({entry['n_seeds']})"
+
+
+def markdown(out: dict) -> str:
+    cols = [METHOD_NAMES[m] for m in METHODS]
+    lines = [f"# Table 1 on our MJX datasets (preset `{out['preset']}`)", "",
+             "Normalised score (100 = committed SAC expert, 0 = uniform random, in MJX), mean ± std over the "
+             f"training seeds present (their count in brackets), {out.get('eval_episodes', '?')} evaluation "
+             f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
+             f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
+             *([] if out["preset"] == "paper" else [
+                 f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
+                 "(README, *What the presets are for*); the `paper` preset is. See *Data* below for the dataset "
+                 "files and cost features these runs used.", ""]),
+             "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
+
+    def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"
+        return [f"| {d} | {e} | {fmt(d, e, out['table'].get(f'{d}/{e}', {}))} |" for d in DATASETS for e in ENVS]
+
+    def own(d, e):
+        v = out["dataset_score"].get(f"{d}/{e}")
+        return "–" if v is None else f"{v:.1f}"
+
+    lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in METHODS))
+    for label, av in out["averages"].items():
+        lines.append(f"| **average ({label})** | | | " + " | ".join(
+            "–" if av[m]["mean"] is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
+            for m in METHODS) + " |")
+    lines += ["", "## Better than demonstrated?", "",
+              "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
+              "(none above it, one below), "
+              "and the rollouts' min-subdominance (eq. 2, engineered features) against the demos (lower is "
+              "better); mean over seeds.", "",
+              "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
+    lines += cells(lambda d, e, row: " | ".join(
+        "–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / {row[m]['rollout_min_subdominance']:.2f}"
+        for m in METHODS))
+    lines += ["", "## Cost representations: do they rank the demos like the true return?", "",
+              "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
+              "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
+              "and the learned costs' held-out preference accuracy (pairs among the 20 % of trajectories "
+              "held out of training). Per feature, over all episodes and over those that never fell, for the "
+              "designs considered: [cost_features.md](cost_features.md).", "",
+              "| dataset | env | engineered: Spearman | learned: Spearman | learned: held-out pair accuracy |",
+              "|---|---|---|---|---|"]
+
+    def agreement(d, e, _):
+        c = out["cost_rank_agreement"].get(f"{d}/{e}", {})
+        eng, lr = c.get("engineered_spearman"), c.get("learned", [])
+        sp = f"{np.mean([x['spearman'] for x in lr]):.3f} ({len(lr)})" if lr else "–"
+        acc = f"{np.mean([x['heldout_pair_accuracy'] for x in lr]):.3f}" if lr else "–"
+        return f"{'–' if eng is None else f'{eng:.3f}'} | {sp} | {acc}"
+
+    lines += cells(agreement)
+    lines += ["", "## Data", "",
+              "The dataset file(s) the runs of each cell used (the name holds the recording recipe; hash of the "
+              "episodes, where the run recorded it) and their engineered cost features. A cell whose file is not "
+              "today's `python -m minsubdt_jax.data` recording, or whose features are not today's "
+              "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
+              "| dataset | env | file (sha256): cost features |", "|---|---|---|"]
+    lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}" for x in
+                                             out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
+              for d in DATASETS for e in ENVS]
+    lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
+              "Not comparable one to one with the table above: other physics, other behaviour policies, other "
+              "references, 100k training steps. For orientation only.", "",
+              "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
+    for (d, e), v in PUBLISHED.items():
+        lines.append(f"| {d} | {e} | " + " | ".join(f"{v[m]:.1f}" for m in METHODS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_costs(rows, env, png):
+    """Per dataset: the demos' engineered cost features (a sample) against every method's rollouts."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r["env"] == env and r["r"].get("eval")]
+    if not rows:
+        return
+    fig, axes = plt.subplots(1, len(DATASETS), figsize=(4.2 * len(DATASETS), 3.6), dpi=100, squeeze=False)
+    for ax, d in zip(axes[0], DATASETS):
+        rs = [r for r in rows if r["dataset"] == d]
+        if not rs:
+            ax.set_title(f"{env} {d}: no runs yet")
+            continue
+        demo = np.asarray(rs[0]["r"]["dataset"]["costs_sample"])
+        groups = [("demos", demo)] + [(METHOD_NAMES[m], np.concatenate([np.asarray(r["r"]["eval"]["costs"])
+                                                                       for r in rs if r["method"] == m]))
+                                      for m in METHODS if any(r["method"] == m for r in rs)]
+        for gi, (label, pts) in enumerate(groups):
+            if pts.shape[1] >= 2:
+                ax.scatter(pts[:, 0], pts[:, 1], s=8 if gi == 0 else 18, alpha=0.35 if gi == 0 else 0.8, label=label)
+            else:
+                ax.scatter(pts[:, 0], gi + 0.15 * np.random.default_rng(gi).normal(size=len(pts)), s=10, label=label)
+        names = list(rs[0]["r"]["dataset"]["costs_mean"])
+        ax.set(title=f"{env} {d}", xlabel=f"{names[0]} cost")
+        ax.set_ylabel(f"{names[1]} cost" if len(names) > 1 else "group")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
