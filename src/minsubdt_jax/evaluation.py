@@ -120,8 +120,8 @@ def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int,
     ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
                        mesh=mesh)
     return [score_episodes(env, ro.observations[i, :num_episodes], ro.lengths[i, :num_episodes],
-                           ro.rewards[i, :num_episodes], terminated=ro.terminated[i, :num_episodes], horizon=horizon, demo_costs=demo_costs, beta=beta,
-                           alpha_max=alpha_max, learned=None if learned is None else learned[i],
+                           ro.rewards[i, :num_episodes], terminated=ro.terminated[i, :num_episodes],
+                           horizon=horizon, demo_costs=demo_costs, beta=beta, alpha_max=alpha_max, learned=None if learned is None else learned[i],
                            demo_features=None if demo_features is None else demo_features[i])
             for i in range(len(seeds))]
 

@@ -75,12 +75,12 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     models = [(m, s) for m in methods for s in seeds]
     # before anything is written: bad data changes nothing. Only learned costs depend on the seed.
     source = load(cfg, verbose)
-    preps = {}
+    preps, per_model = {}, []  # one per method, and per seed where the features are learned (they depend on the seed)
     for m, s in models:
         key = (m.name, s if m.features == "learned" else None)
         if key not in preps:
             preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source)
-    per_model = [preps[(m.name, s if m.features == "learned" else None)] for m, s in models]
+        per_model.append(preps[key])
     data, data_axis = stack_return_tokens(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
                                  "the training data (every process must load the same dataset)")
