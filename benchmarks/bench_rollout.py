@@ -1,4 +1,5 @@
-"""Evaluation speed: a DT policy rolled out for 100 episodes x 1000 steps, batched MJX vs one episode at a time.
+"""Evaluation speed in MJX: a DT policy rolled out for 100 episodes x 1000 steps, batched vs one episode at a time
+(C MuJoCo against MJX: ``bench_physics.py``).
 
     python benchmarks/bench_rollout.py                       # halfcheetah, cpu-preset DT, 100 x 1000
     python benchmarks/bench_rollout.py --env walker --sequential-episodes 100 --json out.json
@@ -32,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from minsubdt_jax.config import PRESETS
-from minsubdt_jax.envs import env_spec, make_env, make_rollout, random_policy
+from minsubdt_jax.envs import MjxEnv, env_spec, make_rollout, random_policy
 from minsubdt_jax.agents.base import PolicyInputs
 from minsubdt_jax.agents.dt.agent import make_dt_agent
 
@@ -52,7 +53,7 @@ def setup(env: str, preset: str, policy: str):
 
 def batched(env, policy, params, carry, episodes, horizon, seed=0):
     """(seconds, env-steps, compile seconds): all episodes in one jitted call."""
-    run = make_rollout(env, policy, episodes, horizon)
+    run = make_rollout(env, policy, episodes, horizon, physics="mjx")
     c = carry(episodes)
     t0 = time.perf_counter()
     jax.block_until_ready(run(params, c, jax.random.PRNGKey(seed + 1)))
@@ -65,7 +66,7 @@ def batched(env, policy, params, carry, episodes, horizon, seed=0):
 
 def sequential_jit(env, policy, params, carry, episodes, horizon, seed=0):
     """One episode at a time, each one jitted while-loop of batch 1."""
-    run = make_rollout(env, policy, 1, horizon)
+    run = make_rollout(env, policy, 1, horizon, physics="mjx")
     c = carry(1)
     t0 = time.perf_counter()
     jax.block_until_ready(run(params, c, jax.random.PRNGKey(10_000)))
@@ -81,7 +82,7 @@ def sequential_jit(env, policy, params, carry, episodes, horizon, seed=0):
 
 def sequential_python(env, policy, params, carry, episodes, horizon, seed=0):
     """The official DT evaluation loop: Python over steps, one jitted policy call and env.step per step."""
-    brax_env = make_env(env)
+    brax_env = MjxEnv(env)
     policy = jax.jit(policy)
     reset, step = jax.jit(brax_env.reset), jax.jit(brax_env.step)
 

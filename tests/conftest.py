@@ -1,4 +1,4 @@
-"""Shared fixtures: one small MJX dataset per session (compiled once), written as a D4RL file; one persistent
+"""Shared fixtures: one small dataset per session (C MuJoCo, brax dynamics), written as a D4RL file; one persistent
 XLA compilation cache per session, shared by the tests and every subprocess they start, so a program the suite
 compiles twice (a resumed run, the same smoke model in another test, a CLI subprocess) compiles once. A fresh
 machine pays each distinct compile once; nothing outlives the session."""
@@ -24,13 +24,14 @@ if "MINSUBDT_TEST_XLA_CACHE" not in os.environ:
 os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ["MINSUBDT_TEST_XLA_CACHE"]
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.3"
 
-ENV = "hopper"  # the cheapest MJX env to compile and step
+ENV = "hopper"  # the cheapest env to compile and step
 HORIZON = 60
 
 
 @pytest.fixture(scope="session")
 def small_dataset():
-    """32 random-action hopper episodes of at most 60 steps, made in MJX inside the test run."""
+    """32 random-action hopper episodes of at most 60 steps, recorded inside the test run (``auto`` physics: C
+    MuJoCo on the CPU, so no physics compile)."""
     from minsubdt_jax.data import generate_random
 
     return generate_random(ENV, episodes=32, horizon=HORIZON, seed=0)
@@ -41,7 +42,7 @@ def small_dataset_path(small_dataset, tmp_path_factory):
     from minsubdt_jax.data import save_d4rl
 
     path = tmp_path_factory.mktemp("data") / "hopper-small.hdf5"
-    save_d4rl(small_dataset, path)
+    save_d4rl(small_dataset, path, env=ENV, dynamics="brax", physics="mujoco")
     return str(path)
 
 

@@ -81,8 +81,9 @@ def test_bc_mlp_trains_and_is_evaluated_like_the_dt(tmp_path, small_dataset_path
     assert res["method"] == {"name": "bc-mlp", "label": "BC (MLP)", "agent": "mlp"}
     ev = res["eval"]
     assert ev["episodes"] == 3 and np.isfinite(ev["normalized_score_mean"]) and 0 <= ev["min_subdominance_mean"] <= 2
-    assert set(res) == {"config", "method", "dataset", "references", "platform", "seeds", "models", "train",
-                        "eval_per_seed", "eval"}
+    assert set(res) == {"config", "method", "dataset", "references", "physics", "platform", "seeds", "models",
+                        "train", "eval_per_seed", "eval"}
+    assert res["physics"]["physics"] == "mujoco" and res["physics"]["dynamics"] == "brax"  # auto on the CPU
     assert set(ev) >= {"returns", "costs", "normalized_score_std", "better_than_mean_demo_share", "seconds"}
     records = [json.loads(ln) for ln in open(tmp_path / "mlp" / "metrics.jsonl")]
     assert [(r["step"], sorted(r)) for r in records] == seen

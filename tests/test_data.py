@@ -213,10 +213,13 @@ def test_zeroed_blocks_never_load_silently_wrong(tmp_path):
     assert outcomes["error"] > 0 and sum(outcomes.values()) == -(-len(raw) // 4096), outcomes
 
 
-def test_data_must_fit_the_env(tmp_path, small_dataset_path):
+def test_data_must_fit_the_env(tmp_path, small_dataset, small_dataset_path):
     """hopper data as walker (shapes), walker-like data as halfcheetah (same shapes, other reset state), and a
     file recorded in another env: each one DatasetError naming the likely env."""
     with pytest.raises(DatasetError, match="size 11 and actions of size 3; walker has 17 and 6.*fits hopper"):
+        save_d4rl(small_dataset, tmp_path / "plain.hdf5")  # no env record: the shapes tell
+        resolve_dataset("walker", str(tmp_path / "plain.hdf5"))
+    with pytest.raises(DatasetError, match="recorded in hopper, not in walker"):
         resolve_dataset("walker", small_dataset_path)
     a = _flat(n=40, obs=17, act=6)
     a["observations"][:, 0] = 1.25  # a walker's torso height at reset (halfcheetah's obs[0] starts at 0)
@@ -234,7 +237,7 @@ import sys, time, numpy as np
 from minsubdt_jax.data import named
 from minsubdt_jax.data.dataset import from_padded
 
-def slow_generate(env, dataset, transitions, horizon, seed, verbose):
+def slow_generate(env, dataset, transitions, horizon, seed, verbose, physics=None):
     with open(sys.argv[1], "a") as f:
         f.write("recorded\\n")
     rng = np.random.default_rng(seed)
@@ -266,8 +269,8 @@ def test_concurrent_recordings_of_one_dataset_record_it_once(tmp_path):
         assert p.returncode == 0, e[-3000:]
     assert outs[0][0] == outs[1][0] and outs[0][0].split()[1] == "400"
     assert log.read_text().count("recorded") == 1
-    files = os.listdir(tmp_path / "cache" / "minsubdt_jax" / "datasets")
-    assert sorted(files) == ["hopper-medium-t20000-h50-s0.hdf5", "hopper-medium-t20000-h50-s0.hdf5.lock"]
+    files = sorted(os.listdir(tmp_path / "cache" / "minsubdt_jax" / "datasets"))
+    assert files == ["hopper-medium-t20000-h50-s0-mujoco.hdf5", "hopper-medium-t20000-h50-s0-mujoco.hdf5.lock"]
     assert load_d4rl(tmp_path / "cache" / "minsubdt_jax" / "datasets" / files[0]).sha256() == outs[0][0].split()[0]
 
 
@@ -281,6 +284,6 @@ def test_damaged_cache_file_names_the_file_and_force(tmp_path, monkeypatch):
     os.makedirs(os.path.dirname(path))
     with open(path, "wb") as f:
         f.write(b"\0" * 4096)
-    with pytest.raises(DatasetError, match=r"hopper-medium-t2000-h60-s0.hdf5: not a readable hdf5 file .* cached "
+    with pytest.raises(DatasetError, match=r"hopper-medium-t2000-h60-s0-mujoco.hdf5: not a readable hdf5 file .* cached "
                                            r"recording: .*--dataset medium --force"):
         resolve_dataset("hopper", "medium", transitions=2000, horizon=60)

@@ -94,3 +94,15 @@ def test_dropout_is_active_in_training_mode_only():
     t2 = model.apply(params, **x, deterministic=False, rngs={"dropout": jax.random.PRNGKey(2)})
     np.testing.assert_array_equal(t1, t1b)
     assert not np.allclose(t1, det) and not np.allclose(t1, t2)
+
+
+def test_last_only_is_the_full_forward_at_the_last_state():
+    """The rollout policy's ``last_only`` forward (last layer, LayerNorm and head for one token) equals the full
+    forward's last prediction, with left padding and 2 heads."""
+    model, params = _model_and_params()
+    x = _inputs(3)
+    x["mask"] = jnp.asarray(np.arange(K)[None] >= np.array([[0], [2]]))  # the second sequence left-padded by 2
+    full = model.apply(params, **x)[:, -1]
+    last = model.apply(params, **x, last_only=True)
+    assert last.shape == (B, ACT)
+    np.testing.assert_allclose(last, full, rtol=1e-5, atol=1e-6)

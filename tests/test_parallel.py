@@ -64,17 +64,24 @@ SUBPROCESS = COMMON + textwrap.dedent("""
         else:
             raise AssertionError(f"make_mesh must refuse {bad}")
     # the rollout itself ran split: its output lives on both devices
-    from minsubdt_jax.envs import make_rollout
-    from minsubdt_jax.evaluation import _seed_rollout
+    from minsubdt_jax.envs import make_seed_rollout
     cfg = PRESETS["smoke"]
     hop = make_dt_agent(cfg, 11, 3, 60)
     pol = PolicyInputs(params=init_state(hop, make_optimizer(cfg), jax.random.PRNGKey(0)).params,
                        state_mean=np.zeros(11, np.float32), state_std=np.ones(11, np.float32),
                        target_return=np.float32(0), rtg_scale=np.float32(1), subtract_rewards=np.float32(0))
     mesh = make_mesh(2, cfg.batch_size)  # inputs placed as evaluate_policy places them: its compiled program
-    ro = _seed_rollout(make_rollout, "hopper", hop.policy, 4, 60, mesh)(
+    ro = make_seed_rollout("hopper", hop.policy, 4, 60, mesh, physics="auto", dynamics="brax", threads=0)(
         replicate(jax.tree.map(lambda x: np.asarray(x)[None], pol), mesh), hop.initial_carry(4),
         jax.random.PRNGKey(4)[None])
+    # C MuJoCo runs on one process's cores: on this 2-device mesh it is refused, one error line, nothing written
+    import contextlib, io, os, tempfile
+    from minsubdt_jax.train import main
+    never, err = os.path.join(tempfile.mkdtemp(), "never"), io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = main(["--preset", "smoke", "--env", "hopper", "--physics", "mujoco", "--devices", "2", "--out", never])
+    assert code == 2 and err.getvalue().count("error:") == 1 and "--physics mujoco runs on one" in err.getvalue()
+    assert not os.path.exists(never), never
     out["rollout_devices"] = len(ro.observations.sharding.device_set)
     out["rollout_replicated"] = ro.observations.sharding.is_fully_replicated
     np.savez(sys.argv[1], **out)

@@ -9,6 +9,7 @@ import types
 import typing
 from dataclasses import dataclass
 
+from .envs import DYNAMICS, PHYSICS
 from .methods import METHODS, RETURNS_ALIASES
 from .parallel import distributed_settings
 
@@ -55,7 +56,15 @@ class Config:
     cost_label_noise: float = 0.0  # probability of flipping a preference label
     # data and evaluation
     episode_length: int = 1000  # horizon of generated datasets, of evaluation, and of the cost average
-    dataset_transitions: int = 100_000  # size of a recorded named dataset (medium-expert: twice)
+    # size of a recorded named dataset; default D4RL's (1M; medium-replay hopper 402k, walker 302k, halfcheetah
+    # 202k; medium-expert twice 1M)
+    dataset_transitions: int | None = None
+    # physics: auto (C MuJoCo on a CPU, MJX on an accelerator or a mesh of several devices) | mujoco | mjx
+    physics: str = "auto"
+    physics_threads: int = 0  # C MuJoCo's threads (0: the machine's cores)
+    # env rules to evaluate in: brax | d4rl (gym's v2-v4 rules and XMLs, D4RL's references); default from the data:
+    # our recordings brax, a D4RL file by replaying its recorded states (--check-dynamics), else d4rl
+    dynamics: str | None = None
     eval_episodes: int = 10  # 0 skips the final evaluation
     eval_every: int = 0  # evaluate every this many steps during training (0: only at the end); multiple of chunk_steps
     eval_episodes_periodic: int = 10  # episodes per seed of each periodic evaluation
@@ -95,13 +104,14 @@ PRESETS = {
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
-CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS)}
+CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS), "physics": PHYSICS,
+           "dynamics": DYNAMICS}
 
 
 def validate(cfg: Config) -> Config:
     """Raise ValueError with one clear message on an unusable config; return it unchanged otherwise."""
     for name, allowed in CHOICES.items():
-        if getattr(cfg, name) not in allowed:
+        if getattr(cfg, name) not in allowed and not (name == "dynamics" and cfg.dynamics is None):
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     bad = [m for m in cfg.methods if m not in METHODS]
     if bad or len(set(cfg.methods)) != len(cfg.methods):
@@ -110,8 +120,12 @@ def validate(cfg: Config) -> Config:
     agents = {METHODS[m].agent for m in cfg.methods}
     if len(agents) > 1:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
+    if cfg.dataset_transitions is not None and cfg.dataset_transitions < 1:
+        raise ValueError(f"--dataset-transitions must be > 0, got {cfg.dataset_transitions}")
+    if cfg.physics_threads < 0:
+        raise ValueError(f"--physics-threads must be >= 0 (0: all cores), got {cfg.physics_threads}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
-                "episode_length", "dataset_transitions", "learning_rate", "beta", "warmup_steps", "cost_dim",
+                "episode_length", "learning_rate", "beta", "warmup_steps", "cost_dim",
                 "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic")
     for name in positive:
         if not getattr(cfg, name) > 0:

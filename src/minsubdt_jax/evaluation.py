@@ -1,19 +1,19 @@
-"""Evaluation of any policy: batched MJX rollouts and their scores.
+"""Evaluation of any policy: batched rollouts (MJX or C MuJoCo) and their scores.
 
-* :func:`rollout_seeds` rolls out S models of one policy (any agent's, :mod:`minsubdt_jax.agents`) in one jitted
-  program (``vmap`` over the seed axis of the policy inputs, episodes split over a device mesh);
+* :func:`rollout_seeds` rolls out S models of one policy (any agent's, :mod:`minsubdt_jax.agents`) in one program
+  (``vmap`` over the seed axis of the policy inputs; in MJX the episodes split over a device mesh);
 * :func:`score_episodes` scores recorded episodes, whoever acted: return, normalised score, engineered cost
   features, and, given the demos, min-subdominance against them (eq. 2) and the better-than-demonstrated test.
   Dataset recording summarises its episodes with it too (:mod:`minsubdt_jax.data.named`);
 * :func:`evaluate_policy` is the two together; :func:`across_seeds` summarises several seeds.
 
-Another evaluation backend is another ``make_rollout`` with the signature of
-:func:`minsubdt_jax.envs.make_rollout` (a :class:`~minsubdt_jax.envs.Rollout` out), passed as ``backend``.
+The physics (``mjx``, ``mujoco``, ``auto``) and the env rules (``dynamics``: ``brax`` or ``d4rl``) are
+:mod:`minsubdt_jax.envs`'; scores are normalised with the references of the dynamics
+(:mod:`minsubdt_jax.references`).
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import jax
@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .costs import engineered_costs, engineered_spec
-from .envs import make_rollout
+from .envs import make_seed_rollout
 from .parallel import gather
 from .references import normalized_score
 from .subdominance import min_subdominance
@@ -64,20 +64,20 @@ class EvalResult:
 
 
 def score_episodes(env: str, observations, lengths, rewards, *, terminated, horizon: int, demo_costs=None, beta=1.0,
-                   alpha_max=None, learned=None, demo_features=None) -> EvalResult:
+                   alpha_max=None, learned=None, demo_features=None, dynamics: str = "brax") -> EvalResult:
     """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored),
     ``terminated [n]`` (ended by a fall, else by the horizon: costs treat the two apart, :mod:`minsubdt_jax.costs`).
 
     With ``demo_costs [M, K]`` (the dataset's engineered features) each episode's min-subdominance (eq. 2, margin
     ``beta``, cap ``alpha_max``) against them is computed, and whether it beats their mean on every feature.
     With ``learned`` (a :class:`~minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']``, the
-    min-subdominance on the learned features too.
+    min-subdominance on the learned features too. Normalised with the references of ``dynamics``.
     """
     lengths = np.asarray(lengths)
     valid = np.arange(np.shape(rewards)[1])[None, :] < lengths[:, None]
     returns = np.where(valid, np.asarray(rewards), 0.0).sum(1)
     costs = np.asarray(engineered_costs(env, observations, lengths, horizon, terminated=terminated))
-    ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized_score(env, returns), costs=costs,
+    ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized_score(env, returns, dynamics), costs=costs,
                     cost_names=engineered_spec(env).names)
     if demo_costs is not None:
         demo_costs = np.asarray(demo_costs)
@@ -92,16 +92,17 @@ def score_episodes(env: str, observations, lengths, rewards, *, terminated, hori
 
 
 def rollout_seeds(env: str, policy, inputs, carry, *, num_episodes: int, horizon: int, seeds, mesh=None,
-                  backend=make_rollout):
+                  physics: str = "auto", dynamics: str = "brax", threads: int = 0):
     """Roll out S models of ``policy``: ``inputs`` (its traced inputs) has a leading seed axis ``[S, ...]``, ``carry``
     is the policy's initial carry for ``n_run`` episodes, ``seeds [S]`` seed each model's episodes.
 
     With a ``mesh`` each seed's episodes are split over its devices, in every process of a multi-process job; the
     number rolled out, ``n_run``, is ``num_episodes`` rounded up to a multiple of the mesh size (see
     :func:`episodes_to_run`), and the caller scores the first ``num_episodes``, so the result does not depend on
-    the device count. Returns the gathered :class:`~minsubdt_jax.envs.Rollout` ``[S, n_run, ...]``."""
+    the device count. ``physics``, ``dynamics``, ``threads``: see :func:`minsubdt_jax.envs.make_rollout`.
+    Returns the gathered :class:`~minsubdt_jax.envs.Rollout` ``[S, n_run, ...]``."""
     n_run = episodes_to_run(num_episodes, mesh)
-    run = _seed_rollout(backend, env, policy, n_run, horizon, mesh)
+    run = make_seed_rollout(env, policy, n_run, horizon, mesh, physics=physics, dynamics=dynamics, threads=threads)
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     return gather(run(inputs, carry, keys))
 
@@ -112,25 +113,21 @@ def episodes_to_run(num_episodes: int, mesh=None) -> int:
 
 
 def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int, seeds, demo_costs, beta=1.0,
-                    alpha_max=None, learned=None, demo_features=None, mesh=None) -> list[EvalResult]:
+                    alpha_max=None, learned=None, demo_features=None, mesh=None, physics: str = "auto",
+                    dynamics: str = "brax", threads: int = 0) -> list[EvalResult]:
     """Roll out ``agent``'s policy for S models (``inputs [S, ...]``, :class:`~minsubdt_jax.agents.base.PolicyInputs`)
     and score each seed's first ``num_episodes`` episodes against the demos (:func:`score_episodes`).
-    ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed)."""
+    ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed). The episodes run in
+    ``physics`` under ``dynamics`` and are normalised with that dynamics' references."""
     carry = agent.initial_carry(episodes_to_run(num_episodes, mesh))
     ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
-                       mesh=mesh)
+                       mesh=mesh, physics=physics, dynamics=dynamics, threads=threads)
     return [score_episodes(env, ro.observations[i, :num_episodes], ro.lengths[i, :num_episodes],
                            ro.rewards[i, :num_episodes], terminated=ro.terminated[i, :num_episodes],
-                           horizon=horizon, demo_costs=demo_costs, beta=beta, alpha_max=alpha_max, learned=None if learned is None else learned[i],
-                           demo_features=None if demo_features is None else demo_features[i])
+                           horizon=horizon, demo_costs=demo_costs, beta=beta, alpha_max=alpha_max,
+                           learned=None if learned is None else learned[i],
+                           demo_features=None if demo_features is None else demo_features[i], dynamics=dynamics)
             for i in range(len(seeds))]
-
-
-@functools.lru_cache(maxsize=16)
-def _seed_rollout(backend, env: str, policy, num_episodes: int, horizon: int, mesh):
-    """Jitted ``run(inputs [S, ...], carry, rngs [S]) -> Rollout [S, n, ...]`` (cached per shape)."""
-    run = backend(env, policy, num_episodes, horizon, mesh)
-    return jax.jit(jax.vmap(run, in_axes=(0, None, 0)))
 
 
 def across_seeds(per_seed: list[dict]) -> dict:

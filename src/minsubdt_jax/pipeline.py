@@ -29,6 +29,7 @@ class Prepared:
       sampler: the device arrays the train step samples from (states normalised, return tokens scaled).
       state_mean, state_std: ``[obs]`` state normalisation.
       rtg_scale, target_return: the return tokens' divisor and the evaluation target (unscaled).
+      dynamics: the env rules the data is scored and evaluated in (its normalisation references).
     """
 
     source: DatasetFile
@@ -41,6 +42,7 @@ class Prepared:
     state_std: np.ndarray
     rtg_scale: float
     target_return: float
+    dynamics: str = "brax"
 
     def summary(self, env: str) -> dict:
         """The dataset block of ``results.json``."""
@@ -50,7 +52,7 @@ class Prepared:
             "dropped_transitions": self.source.dropped_transitions,
             "episodes": data.num_trajectories, "transitions": data.num_transitions,
             "return_mean": float(data.returns.mean()), "return_std": float(data.returns.std()),
-            "normalized_score_mean": float(normalized_score(env, data.returns).mean()),
+            "normalized_score_mean": float(normalized_score(env, data.returns, self.dynamics).mean()),
             "costs_mean": dict(zip(engineered_spec(env).names, map(float, self.costs.mean(0)))),
             "min_subdominance_mean": float(ms.mean()), "min_subdominance_std": float(ms.std()),
             "spearman_neg_min_subdominance_vs_return": spearman(-ms, data.returns),
@@ -63,15 +65,17 @@ class Prepared:
         return out
 
 
-def load(cfg: Config, verbose: bool = True) -> DatasetFile:
-    """``cfg.dataset`` for ``cfg.env``: loaded, or recorded on first use (:func:`~minsubdt_jax.data.resolve_dataset`)."""
+def load(cfg: Config, verbose: bool = True, physics: str | None = None) -> DatasetFile:
+    """``cfg.dataset`` for ``cfg.env``: loaded, or recorded on first use in ``physics`` (default ``cfg.physics``)
+    (:func:`~minsubdt_jax.data.resolve_dataset`)."""
     return resolve_dataset(cfg.env, cfg.dataset, transitions=cfg.dataset_transitions, horizon=cfg.episode_length,
-                           seed=cfg.dataset_seed, verbose=verbose)
+                           seed=cfg.dataset_seed, verbose=verbose, physics=physics or cfg.physics)
 
 
-def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFile | None = None) -> Prepared:
+def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFile | None = None,
+            dynamics: str = "brax") -> Prepared:
     """Load (or record) ``cfg.dataset`` for ``cfg.env`` (or take ``source``, already loaded), check it, and build
-    ``method``'s training data.
+    ``method``'s training data; ``dynamics`` are the data's (its scores' references).
 
     Raises ValueError (before anything is written) on data that cannot be used: see the checks below and
     :func:`~minsubdt_jax.data.resolve_dataset`."""
@@ -107,7 +111,7 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
         raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
     prep = Prepared(source=source, costs=costs, features=features, learned=learned, min_subdominance=ms,
                     sampler=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale,
-                    target_return=target)
+                    target_return=target, dynamics=dynamics)
     if verbose:
         _report(prep, cfg)
     return prep

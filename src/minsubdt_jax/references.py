@@ -1,7 +1,12 @@
-"""Normalised scores: ``100 (R - R_random) / (R_expert - R_random)`` with random and expert returns measured in
-our MJX environments (1000-step episodes, stochastic policies), committed with the behaviour policies
-(``behavior/snapshots/{env}/manifest.json``). D4RL's gym references do not apply to MJX physics
-(``docs/FIDELITY.md``)."""
+"""Normalised scores: ``100 (R - R_random) / (R_expert - R_random)``, with the references of the dynamics the
+episodes ran in (:mod:`minsubdt_jax.envs.rules`):
+
+* ``brax``: random and expert returns measured in our brax-dynamics envs (1000-step episodes, stochastic policies),
+  committed with the behaviour policies (``behavior/snapshots/{env}/manifest.json``). D4RL's references do not apply
+  to these envs (``docs/FIDELITY.md``);
+* ``d4rl``: D4RL's own references (``d4rl/infos.py``: ``REF_MIN_SCORE`` / ``REF_MAX_SCORE``), for data and
+  evaluation in gym's dynamics.
+"""
 
 from __future__ import annotations
 
@@ -10,16 +15,34 @@ import numpy as np
 from .behavior.snapshots import load_manifest
 from .envs import env_spec
 
-REFERENCE_SOURCE = "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes"
+# d4rl/infos.py, the -v2 locomotion datasets (the same for every dataset of an env)
+D4RL_REFERENCES = {"hopper": (-20.272305, 3234.3), "halfcheetah": (-280.178953, 12135.0),
+                   "walker": (1.629008, 4592.3)}
+REFERENCE_SOURCES = {
+    "brax": "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes",
+    "d4rl": "D4RL's references (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE)",
+}
+REFERENCE_SOURCE = REFERENCE_SOURCES["brax"]
 
 
-def reference_returns(env: str) -> tuple[float, float]:
-    """``(R_random, R_expert)`` for ``env``, measured in MJX and committed with the behaviour policies."""
-    refs = load_manifest(env_spec(env).name)["references"]
+def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:
+    """``(R_random, R_expert)`` for ``env`` in ``dynamics``."""
+    name = env_spec(env).name
+    if dynamics == "d4rl":
+        return D4RL_REFERENCES[name]
+    if dynamics != "brax":
+        raise ValueError(f"no references for dynamics {dynamics!r}; choose one of {sorted(REFERENCE_SOURCES)}")
+    refs = load_manifest(name)["references"]
     return refs["random"]["return_mean"], refs["expert"]["return_mean"]
 
 
-def normalized_score(env: str, returns):
-    """``100 (R - R_random) / (R_expert - R_random)`` with this env's MJX references (:func:`reference_returns`)."""
-    lo, hi = reference_returns(env)
+def normalized_score(env: str, returns, dynamics: str = "brax"):
+    """``100 (R - R_random) / (R_expert - R_random)`` with the references of ``dynamics`` (:func:`reference_returns`)."""
+    lo, hi = reference_returns(env, dynamics)
     return 100.0 * (np.asarray(returns, np.float64) - lo) / (hi - lo)
+
+
+def references_record(env: str, dynamics: str = "brax") -> dict:
+    """What ``results.json`` says about the references a score used."""
+    lo, hi = reference_returns(env, dynamics)
+    return {"dynamics": dynamics, "random": lo, "expert": hi, "source": REFERENCE_SOURCES[dynamics]}

@@ -40,17 +40,19 @@ from .agents import make_agent
 from .agents.base import PolicyInputs, init_seed_states, make_optimizer, make_train_chunk
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
+from .data.d4rl import file_dynamics
+from .envs import physics_record, resolve_physics
 from .evaluation import across_seeds, evaluate_policy
 from .methods import get_method
 from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh, replicate)
 from .pipeline import Prepared, load, prepare
-from .references import REFERENCE_SOURCE
+from .references import REFERENCE_SOURCES, references_record
 from .rundir import (DATASET_FILE, check_run_dir, check_same_data, exit_code, plot_learning_curve, progress,
                      truncate_metrics, write_atomic)
 
 # Fields that may differ between a run and its resumption.
 RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_periodic", "out", "preset", "devices",
-                     "coordinator_address", "num_processes", "process_id")
+                     "coordinator_address", "num_processes", "process_id", "physics", "physics_threads")
 
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True,
@@ -71,15 +73,19 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
     mesh = make_mesh(cfg.devices, cfg.batch_size)  # checked before anything is written
+    physics = resolve_physics(cfg.physics, mesh)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     models = [(m, s) for m in methods for s in seeds]
     # before anything is written: bad data changes nothing. Only learned costs depend on the seed.
-    source = load(cfg, verbose)
+    source = load(cfg, verbose, physics)
+    dynamics, dynamics_how = file_dynamics(source, cfg.env, cfg.dynamics)
+    if verbose:
+        print(f"evaluation in {dynamics} dynamics ({dynamics_how['how']}), {physics} physics", flush=True)
     preps, per_model = {}, []  # one per method, and per seed where the features are learned (they depend on the seed)
     for m, s in models:
         key = (m.name, s if m.features == "learned" else None)
         if key not in preps:
-            preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source)
+            preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source, dynamics)
         per_model.append(preps[key])
     data, data_axis = stack_return_tokens(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
@@ -90,7 +96,8 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
         write_atomic(os.path.join(out, "config.json"), cfg.to_json())
         write_atomic(os.path.join(out, DATASET_FILE), json.dumps(
             {"path": source.path, "sha256": source.sha256, "episodes": source.data.num_trajectories,
-             "transitions": source.data.num_transitions}, indent=2))
+             "transitions": source.data.num_transitions, "dynamics": dynamics, "recorded_physics": source.physics},
+            indent=2))
     dataset = source.data
     agent = make_agent(methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
                        max(cfg.episode_length, dataset.max_len))
@@ -119,7 +126,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
             progress_fn(record["step"], record)
 
     def evaluate(params, episodes):
-        return evaluate_models(cfg, agent, params, models, per_model, mesh, episodes)
+        return evaluate_models(cfg, agent, params, models, per_model, mesh, episodes, physics, dynamics)
 
     chunks = {}
     t0 = time.time()
@@ -151,7 +158,9 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
 
     describe = lambda m: {"name": m.name, "label": m.label, "agent": m.agent}  # noqa: E731
     results = {"config": dataclasses.asdict(cfg), "dataset": per_model[0].summary(cfg.env),
-               "references": REFERENCE_SOURCE, "platform": platform(), "seeds": seeds,
+               "references": references_record(cfg.env, dynamics),
+               "physics": {**physics_record(physics, dynamics, cfg.physics_threads), "dynamics_from": dynamics_how},
+               "platform": platform(), "seeds": seeds,
                "models": [{"method": m.name, "seed": s} for m, s in models],
                "train": {"steps": step, "steps_this_run": step - start, "seconds_this_run": train_seconds}}
     results.update({"method": describe(methods[0])} if len(methods) == 1 else {"methods": [describe(m) for m in methods]})
@@ -176,7 +185,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                     else f"{len(seeds)} seeds x {cfg.eval_episodes} episodes")
             print(f"eval {name}: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
                   f"{e['normalized_score_mean']:.1f} ± {e['normalized_score_std']:.1f} over {over} "
-                  f"({REFERENCE_SOURCE}), min-subdominance {e['min_subdominance_mean']:.3f} "
+                  f"({REFERENCE_SOURCES[dynamics]}), min-subdominance {e['min_subdominance_mean']:.3f} "
                   f"(dataset {results['dataset']['min_subdominance_mean']:.3f})")
     if main:
         write_atomic(os.path.join(out, "results.json"), json.dumps(results, indent=2))
@@ -198,10 +207,10 @@ def stack_return_tokens(per_model: list[Prepared]):
 
 
 def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Prepared], mesh,
-                    episodes: int) -> list[dict]:
+                    episodes: int, physics: str = "auto", dynamics: str = "brax") -> list[dict]:
     """Evaluate the M trained models (``params [M, ...]``, ``models [(method, seed)]``) on ``episodes`` episodes
-    each, in one batched MJX program (episodes split over ``mesh``); a model of seed s has its episodes seeded
-    ``s + 10000``. One summary dict per model, with its method and seed."""
+    each, in one batched program (``physics``; in MJX the episodes split over ``mesh``) under ``dynamics``; a model
+    of seed s has its episodes seeded ``s + 10000``. One summary dict per model, with its method and seed."""
     stack = lambda get: np.stack([np.asarray(get(p), np.float32) for p in per_model])  # noqa: E731
     inputs = PolicyInputs(params=params, state_mean=stack(lambda p: p.state_mean),
                           state_std=stack(lambda p: p.state_std), target_return=stack(lambda p: p.target_return),
@@ -211,7 +220,8 @@ def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Pr
     evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
                           seeds=[s + 10_000 for _, s in models], demo_costs=per_model[0].costs, beta=cfg.beta,
                           alpha_max=cfg.alpha_max, learned=learned,
-                          demo_features=[p.features for p in per_model] if learned else None, mesh=mesh)
+                          demo_features=[p.features for p in per_model] if learned else None, mesh=mesh,
+                          physics=physics, dynamics=dynamics, threads=cfg.physics_threads)
     return [dict(ev.summary(), method=m.name, seed=s, target_return=p.target_return)
             for ev, (m, s), p in zip(evs, models, per_model)]
 

@@ -11,8 +11,9 @@ Export reads a SAC run's ``snapshots.jsonl`` (see :mod:`minsubdt_jax.behavior.tr
   0.40 hopper, 0.58 walker, 0.45 halfcheetah);
 * ``replay``: up to ``--replay`` snapshots evenly spaced up to and including medium (medium-replay's policies);
 
-and writes ``manifest.json`` with the normalisation references measured here in MJX: the uniform-random
-policy's and the expert's mean return over ``--reference-episodes`` stochastic 1000-step episodes.
+and writes ``manifest.json`` with the normalisation references measured here in brax dynamics (``--physics``: C
+MuJoCo or MJX, ``auto`` by default): the uniform-random policy's and the expert's mean return over
+``--reference-episodes`` stochastic 1000-step episodes.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import sys
 import numpy as np
 
 from ..caches import enable_compilation_cache
-from ..envs import ENVS, env_spec
+from ..envs import ENVS, PHYSICS, env_spec, resolve_physics
 from ..rundir import exit_code
 from .snapshots import POLICY_DIR, load_manifest, load_snapshot, measure_return
 from .config import SACConfig
@@ -36,9 +37,10 @@ MEDIUM_RANGE = (0.35, 0.6)
 
 
 def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, reference_episodes: int = 100,
-           verbose: bool = True) -> dict:
+           verbose: bool = True, physics: str = "auto") -> dict:
     """Select expert / medium / replay snapshots of ``run``, measure references, write them under POLICY_DIR."""
     name = env_spec(env).name
+    physics = resolve_physics(physics)
     with open(os.path.join(run, "snapshots.jsonl")) as f:
         snaps = [json.loads(ln) for ln in f if ln.strip()]
     if not snaps:
@@ -47,8 +49,8 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
     say = print if verbose else (lambda *a, **k: None)
 
     expert = max(snaps, key=lambda s: s["return_mean"])
-    ref_expert = measure_return(name, load(expert), reference_episodes, seed=1)
-    ref_random = measure_return(name, None, reference_episodes, seed=2)
+    ref_expert = measure_return(name, load(expert), reference_episodes, seed=1, physics=physics)
+    ref_random = measure_return(name, None, reference_episodes, seed=2, physics=physics)
     say(f"expert step {expert['step']}: {ref_expert['return_mean']:.1f} ± {ref_expert['return_std']:.1f}; "
         f"random {ref_random['return_mean']:.1f}")
     lo, hi = ref_random["return_mean"], ref_expert["return_mean"]
@@ -58,7 +60,7 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
                         key=lambda s: abs(ratio(s["return_mean"]) - medium_ratio))
     medium = None
     for s in candidates:
-        m = measure_return(name, load(s), reference_episodes, seed=3)
+        m = measure_return(name, load(s), reference_episodes, seed=3, physics=physics)
         say(f"medium candidate step {s['step']}: {m['return_mean']:.1f} (ratio {ratio(m['return_mean']):.2f})")
         if MEDIUM_RANGE[0] <= ratio(m["return_mean"]) <= MEDIUM_RANGE[1]:
             medium = {**s, "measured": m, "ratio": ratio(m["return_mean"])}
@@ -81,7 +83,7 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
     keep = ("step", "snapshot", "return_mean", "return_std", "episodes", "wall_seconds")
     manifest = {
         "env": name,
-        "references": {"random": ref_random, "expert": ref_expert},
+        "references": {"random": ref_random, "expert": ref_expert, "physics": physics, "dynamics": "brax"},
         "expert": {k: expert[k] for k in keep},
         "medium": {**{k: medium[k] for k in keep}, "measured": medium["measured"], "ratio": medium["ratio"]},
         "replay": [{k: s[k] for k in keep} for s in replay_snaps],
@@ -90,7 +92,7 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
         # --steps: where the run's snapshots end (a run may be stopped early, or resumed further)
         "commands": [_train_command({**run_cfg, "steps": snaps[-1]["step"]}),
                      f"python -m minsubdt_jax.behavior.policies --env {name} --run {run} --medium-ratio "
-                     f"{medium_ratio} --replay {replay} --reference-episodes {reference_episodes}"],
+                     f"{medium_ratio} --replay {replay} --reference-episodes {reference_episodes} --physics {physics}"],
     }
     with open(os.path.join(out, "manifest.json"), "w") as f:
         json.dump(manifest, f, indent=1)
@@ -115,9 +117,11 @@ def main(argv=None) -> int:
     p.add_argument("--medium-ratio", type=float, default=0.45)
     p.add_argument("--replay", type=int, default=8)
     p.add_argument("--reference-episodes", type=int, default=100)
+    p.add_argument("--physics", choices=PHYSICS, default="auto",
+                   help="who steps the reference episodes: C MuJoCo (mujoco), MJX, or auto (C MuJoCo on a CPU)")
     a = p.parse_args(argv)
     enable_compilation_cache()
-    return exit_code(lambda: export(a.env, a.run, a.medium_ratio, a.replay, a.reference_episodes))
+    return exit_code(lambda: export(a.env, a.run, a.medium_ratio, a.replay, a.reference_episodes, physics=a.physics))
 
 
 if __name__ == "__main__":

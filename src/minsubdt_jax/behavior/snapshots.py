@@ -76,17 +76,19 @@ def replay_weights(env: str) -> list[float]:
     return [warmup] + [max(hi - lo, 0.0) for lo, hi in zip(edges, edges[1:])]
 
 
-def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int):
-    """``(run, params)``: the cached jitted rollout of the stochastic actor ``actor_params`` (``None``: uniform
-    random actions) over ``episodes`` parallel episodes, and the parameters to call it with."""
+def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int, physics: str = "auto"):
+    """``(run, params)``: the rollout (``physics``, brax dynamics) of the stochastic actor ``actor_params``
+    (``None``: uniform random actions) over ``episodes`` parallel episodes, and the parameters to call it with."""
     if actor_params is None:
-        return make_rollout(env, random_policy, episodes, horizon), np.zeros(env_spec(env).act_dim, np.float32)
-    return make_rollout(env, policy_step, episodes, horizon), actor_params
+        return (make_rollout(env, random_policy, episodes, horizon, physics=physics),
+                np.zeros(env_spec(env).act_dim, np.float32))
+    return make_rollout(env, policy_step, episodes, horizon, physics=physics), actor_params
 
 
-def measure_return(env: str, actor_params, episodes: int, horizon: int = 1000, seed: int = 0) -> dict:
+def measure_return(env: str, actor_params, episodes: int, horizon: int = 1000, seed: int = 0,
+                   physics: str = "auto") -> dict:
     """Mean ± std return of ``episodes`` stochastic episodes (``actor_params=None``: uniform random actions)."""
-    run, params = make_policy_rollout(env, actor_params, episodes, horizon)
+    run, params = make_policy_rollout(env, actor_params, episodes, horizon, physics)
     ro = jax.device_get(run(params, (), jax.random.PRNGKey(seed)))
     r = np.asarray(ro.rewards).sum(1)
     return {"return_mean": float(r.mean()), "return_std": float(r.std()), "episodes": int(episodes),

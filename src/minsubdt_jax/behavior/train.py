@@ -33,7 +33,7 @@ import orbax.checkpoint as ocp
 from flax import struct
 
 from ..caches import enable_compilation_cache
-from ..envs import env_spec, make_env, make_rollout
+from ..envs import MjxEnv, env_spec, make_rollout
 from ..rundir import check_run_dir, exit_code, progress, truncate_metrics
 from .config import SACConfig, parse_args, validate
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
@@ -71,7 +71,7 @@ class SAC:
     def __init__(self, cfg: SACConfig):
         self.cfg = validate(cfg)
         self.spec = env_spec(cfg.env)
-        self.env = make_env(cfg.env)
+        self.env = MjxEnv(env_spec(cfg.env).name)  # the SAC loop is one jitted scan: MJX
         self.actor = Actor(self.spec.act_dim, (cfg.hidden, cfg.hidden))
         self.critic = DoubleCritic((cfg.hidden, cfg.hidden))
         self.tx = optax.adam(cfg.learning_rate)

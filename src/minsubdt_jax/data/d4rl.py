@@ -1,9 +1,11 @@
 """D4RL hdf5 files: ``observations, actions, rewards, terminals, timeouts`` (+ optional ``infos/...``).
 
-Files this package writes carry two root attributes: ``sha256``, the content hash of the episodes
+Files this package writes carry root attributes: ``sha256``, the content hash of the episodes
 (:meth:`Trajectories.sha256`), verified on every load (HDF5 reads a lost chunk as zeros, so a damaged file
-can otherwise load without error), and ``env``, the environment the data was recorded in. Files from
-elsewhere (D4RL's own) have neither and load unverified. D4RL v0 files have no ``timeouts``: they are inferred
+can otherwise load without error), ``env``, the environment the data was recorded in, and ``dynamics`` and
+``physics``, the env rules and the backend that recorded it (:mod:`minsubdt_jax.envs`). Files from elsewhere
+(D4RL's own) have none of them and load unverified; :func:`file_dynamics` tells which dynamics such a file's data
+came from. D4RL v0 files have no ``timeouts``: they are inferred
 from the time limit (``horizon``) and the load says so (:attr:`DatasetFile.timeouts_inferred`).
 """
 
@@ -16,6 +18,8 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
+from ..envs import dynamics_report
+from ..envs.rules import check_dynamics_name
 from .dataset import REQUIRED_KEYS, DatasetError, Trajectories, checksum, from_flat, infer_timeouts
 
 
@@ -28,6 +32,8 @@ class DatasetFile:
       path: the file.
       sha256: content hash of ``data`` (:meth:`Trajectories.sha256`): what a run records and a resume compares.
       env: the environment named in the file (files written here), else ``None``.
+      dynamics, physics: the env rules and the physics backend named in the file (files written here; files
+        written before these were recorded name neither, and are ``brax`` dynamics in MJX), else ``None``.
       timeouts_inferred: the file had no ``timeouts`` (D4RL v0); they were inferred from the horizon.
       dropped_transitions: transitions after the file's last episode end (an unfinished episode), not loaded.
     """
@@ -38,6 +44,8 @@ class DatasetFile:
     env: str | None = None
     timeouts_inferred: bool = False
     dropped_transitions: int = 0
+    dynamics: str | None = None
+    physics: str | None = None
 
 
 def open_d4rl(path, horizon: int = 1000) -> DatasetFile:
@@ -58,6 +66,7 @@ def open_d4rl(path, horizon: int = 1000) -> DatasetFile:
             arrays = {k: f[k][()] for k in REQUIRED_KEYS if k in f}
             stored = _attr(f, "sha256")
             env = _attr(f, "env")
+            dynamics, physics = _attr(f, "dynamics"), _attr(f, "physics")
     except (OSError, RuntimeError, KeyError, ValueError, TypeError) as e:  # h5py's errors for damaged files
         raise DatasetError(f"{path}: not a readable hdf5 file ({type(e).__name__}: {e})") from None
     inferred = "timeouts" not in arrays and "terminals" in arrays
@@ -68,7 +77,10 @@ def open_d4rl(path, horizon: int = 1000) -> DatasetFile:
     if stored is not None and stored != digest:
         raise DatasetError(f"{path}: the file is damaged: its contents do not match the checksum it was written "
                            f"with (sha256 {stored[:12]}…, read {digest[:12]}…)")
-    return DatasetFile(data, path, digest, env, inferred, len(arrays["rewards"]) - data.num_transitions)
+    if env is not None and dynamics is None:  # recorded here before dynamics were named: brax's, in MJX
+        dynamics, physics = "brax", "mjx"
+    return DatasetFile(data, path, digest, env, inferred, len(arrays["rewards"]) - data.num_transitions, dynamics,
+                       physics)
 
 
 def load_d4rl(path, horizon: int = 1000) -> Trajectories:
@@ -76,9 +88,10 @@ def load_d4rl(path, horizon: int = 1000) -> Trajectories:
     return open_d4rl(path, horizon).data
 
 
-def save_d4rl(dataset: Trajectories, path, infos: dict[str, np.ndarray] | None = None, env: str | None = None) -> str:
-    """Write ``dataset`` in the D4RL flat layout with its checksum (and ``env``); ``infos`` (flat per-step
-    arrays) go under ``infos/``, with their own checksum. Returns the content hash.
+def save_d4rl(dataset: Trajectories, path, infos: dict[str, np.ndarray] | None = None, env: str | None = None,
+              dynamics: str | None = None, physics: str | None = None) -> str:
+    """Write ``dataset`` in the D4RL flat layout with its checksum (and ``env``, ``dynamics``, ``physics`` when
+    given); ``infos`` (flat per-step arrays) go under ``infos/``, with their own checksum. Returns the content hash.
 
     Written to a temporary file of its own (unique per writer) and renamed into place, so neither a crash nor a
     concurrent writer of the same path ever leaves a partial file under ``path``.
@@ -99,8 +112,9 @@ def save_d4rl(dataset: Trajectories, path, infos: dict[str, np.ndarray] | None =
             f.attrs["sha256"] = digest
             if infos:
                 f.attrs["infos_sha256"] = checksum(infos)
-            if env is not None:
-                f.attrs["env"] = env
+            for name, value in (("env", env), ("dynamics", dynamics), ("physics", physics)):
+                if value is not None:
+                    f.attrs[name] = value
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -121,6 +135,24 @@ def read_infos(path) -> dict[str, np.ndarray]:
     if stored is not None and stored != checksum(infos):
         raise DatasetError(f"{path}: the file is damaged: its infos do not match the checksum they were written with")
     return infos
+
+
+def file_dynamics(f: DatasetFile, env: str, dynamics: str | None = None) -> tuple[str, dict]:
+    """``(dynamics, how)``: the env rules to evaluate the data of ``f`` in, and how that was decided.
+
+    ``dynamics`` given wins. A file of ours names its own. A file from elsewhere that records physics states
+    (``infos/qpos``, ``infos/qvel``; D4RL v2) is replayed under each dynamics (:func:`minsubdt_jax.envs.dynamics_report`)
+    and gets the one that reproduces it; one without them is taken to be D4RL's (gym's rules)."""
+    if dynamics is not None:
+        return check_dynamics_name(dynamics), {"how": "given"}
+    if f.dynamics is not None:
+        return f.dynamics, {"how": "recorded in the file"}
+    infos = read_infos(f.path)
+    if "qpos" in infos and "qvel" in infos:
+        n = f.data.num_transitions  # the rows of the loaded episodes (a trailing unfinished one is dropped)
+        report = dynamics_report(env, f.data, infos["qpos"][:n], infos["qvel"][:n])
+        return report["best"], {"how": "checked: replayed from infos/qpos, infos/qvel", **report}
+    return "d4rl", {"how": "a D4RL-layout file without physics states: D4RL's (gym's) dynamics assumed"}
 
 
 def _attr(f: h5py.File, name: str) -> str | None:

@@ -1,7 +1,7 @@
-"""D4RL-style datasets recorded in MJX from the committed behaviour policies, cached on disk.
+"""D4RL-style datasets recorded from the committed behaviour policies (brax dynamics, C MuJoCo or MJX), cached.
 
-    python -m minsubdt_jax.data --env walker --dataset medium                     # 100k transitions
-    python -m minsubdt_jax.data --env hopper --dataset medium-replay --transitions 1000000   # D4RL's size
+    python -m minsubdt_jax.data --env walker --dataset medium                     # D4RL's size: 1M transitions
+    python -m minsubdt_jax.data --env hopper --dataset medium-replay --transitions 100000   # a smaller one
 
 * ``random``: uniformly random actions;
 * ``medium`` / ``expert``: the committed medium / expert SAC snapshot, actions sampled from the stochastic
@@ -12,7 +12,8 @@
 * ``medium-expert``: ``medium`` ∪ ``expert`` (each of ``transitions``, so twice the size, as in D4RL).
 
 Episodes are whole (``horizon`` steps unless terminated) and collected in batches until at least
-``transitions`` transitions; everything is a function of the seed. Files go to
+``transitions`` transitions (by default D4RL's size, :func:`d4rl_transitions`); everything is a function of the
+seed and the physics (C MuJoCo and MJX give the same episodes up to float rounding, which chaos amplifies). Files go to
 ``$XDG_CACHE_HOME/minsubdt_jax/datasets`` (else ``~/.cache/...``) in the D4RL layout plus ``infos/qpos``,
 ``infos/qvel``, ``infos/x_velocity``, ``infos/z_velocity`` (of the state each action was taken in).
 """
@@ -30,7 +31,7 @@ import numpy as np
 
 from ..behavior.snapshots import load_policy, load_replay_policies, make_policy_rollout, replay_weights
 from ..caches import cache_dir
-from ..envs import check_dataset, env_spec
+from ..envs import check_dataset, env_spec, resolve_physics
 from ..evaluation import score_episodes
 from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
@@ -38,22 +39,33 @@ from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_c
 NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
 # a recipe that changed gets a new file name, so no cache file recorded the old way stands in for the new one
 RECIPE_VERSION = {"medium-replay": 2}
-DEFAULT_TRANSITIONS = 100_000
-MAX_BATCH = 128  # episodes per jitted rollout call (at most)
+# D4RL's sizes (its -v2 files): medium, expert and random 1M; medium-replay the replay buffer up to the medium
+# policy; medium-expert is medium + expert, each of this size
+D4RL_TRANSITIONS = {"random": 1_000_000, "medium": 1_000_000, "expert": 1_000_000, "medium-expert": 1_000_000,
+                    "medium-replay": {"hopper": 402_000, "walker": 302_000, "halfcheetah": 202_000}}
+MAX_BATCH = 128  # episodes per rollout call (at most)
 
 
-def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: int) -> str:
+def d4rl_transitions(env: str, dataset: str) -> int:
+    """D4RL's size of ``dataset`` for ``env`` (the default of ``--transitions``; medium-expert: per part)."""
+    n = D4RL_TRANSITIONS[dataset]
+    return n[env_spec(env).name] if isinstance(n, dict) else n
+
+
+def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: int, physics: str = "mujoco") -> str:
     version = f"-v{RECIPE_VERSION[dataset]}" if dataset in RECIPE_VERSION else ""
+    backend = "" if physics == "mjx" else f"-{physics}"  # MJX recordings keep the names they always had
     return os.path.join(cache_dir(), "datasets",
-                        f"{env_spec(env).name}-{dataset}{version}-t{transitions}-h{horizon}-s{seed}.hdf5")
+                        f"{env_spec(env).name}-{dataset}{version}-t{transitions}-h{horizon}-s{seed}{backend}.hdf5")
 
 
-def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None) -> tuple[Trajectories, dict]:
-    """Whole episodes of one policy (``actor_params=None``: uniform random actions) in batched MJX until they
-    hold at least ``transitions`` transitions. Returns the episodes and their flat per-step ``infos``."""
+def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None, physics: str = "auto"
+            ) -> tuple[Trajectories, dict]:
+    """Whole episodes of one policy (``actor_params=None``: uniform random actions), batched, until they hold at
+    least ``transitions`` transitions. Returns the episodes and their flat per-step ``infos``."""
     # enough episodes in one call when they average a quarter of the horizon; one compiled shape per call site
     batch = max(1, min(MAX_BATCH, 4 * math.ceil(transitions / horizon)))
-    run, actor_params = make_policy_rollout(env, actor_params, batch, horizon)
+    run, actor_params = make_policy_rollout(env, actor_params, batch, horizon, physics)
     parts, total, i = [], 0, 0
     while total < transitions:
         ro = jax.device_get(run(actor_params, (), jax.random.fold_in(rng, i)))
@@ -74,8 +86,8 @@ def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=Non
     return data, infos
 
 
-def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, horizon: int = 1000, seed: int = 0,
-             verbose: bool = True) -> tuple[Trajectories, dict]:
+def generate(env: str, dataset: str, transitions: int | None = None, horizon: int = 1000, seed: int = 0,
+             verbose: bool = True, physics: str = "auto") -> tuple[Trajectories, dict]:
     """Record the named ``dataset`` (not ``medium-expert``, which :func:`resolve_dataset` assembles)."""
     from tqdm import tqdm
 
@@ -87,26 +99,28 @@ def generate(env: str, dataset: str, transitions: int = DEFAULT_TRANSITIONS, hor
         policies, weights = [None, *load_replay_policies(env)], replay_weights(env)
     else:
         raise DatasetError(f"cannot record {dataset!r} directly; choose one of {list(NAMED_DATASETS)}")
+    transitions = d4rl_transitions(env, dataset) if transitions is None else transitions
     shares = [math.ceil(transitions * w / sum(weights)) for w in weights]
     rng = jax.random.PRNGKey(seed)
     with tqdm(total=sum(shares), disable=not verbose, unit="transition", unit_scale=True,
               desc=f"{env_spec(env).name}/{dataset}", dynamic_ncols=True, mininterval=1.0) as bar:
-        parts = [collect(env, p, n, horizon, jax.random.fold_in(rng, j), bar)
+        parts = [collect(env, p, n, horizon, jax.random.fold_in(rng, j), bar, physics)
                  for j, (p, n) in enumerate(zip(policies, shares))]
     return concatenate([d for d, _ in parts]), {k: np.concatenate([i[k] for _, i in parts]) for k in parts[0][1]}
 
 
-def generate_random(env: str, episodes: int, horizon: int, seed: int) -> Trajectories:
+def generate_random(env: str, episodes: int, horizon: int, seed: int, physics: str = "auto") -> Trajectories:
     """Exactly ``episodes`` episodes of uniformly random actions (for tests and small experiments)."""
-    run, params = make_policy_rollout(env, None, episodes, horizon)
+    run, params = make_policy_rollout(env, None, episodes, horizon, physics)
     ro = jax.device_get(run(params, (), jax.random.PRNGKey(seed)))
     return from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
 
 
-def resolve_dataset(env: str, dataset: str, *, transitions: int = DEFAULT_TRANSITIONS, horizon: int = 1000,
-                    seed: int = 0, verbose: bool = True) -> DatasetFile:
+def resolve_dataset(env: str, dataset: str, *, transitions: int | None = None, horizon: int = 1000,
+                    seed: int = 0, verbose: bool = True, physics: str = "auto") -> DatasetFile:
     """Load ``dataset`` for ``env``: a path to a D4RL-layout hdf5 file, or a name in ``NAMED_DATASETS`` (recorded
-    into the cache on first use), checked against the env (:func:`minsubdt_jax.envs.check_dataset`).
+    into the cache on first use in ``physics``, brax dynamics, ``transitions`` or D4RL's size), checked against the
+    env (:func:`minsubdt_jax.envs.check_dataset`).
 
     A recording holds a lock on its cache file, so concurrent processes asking for the same dataset record it
     once: the others wait, then load the finished file. Readers never see a partial file (see ``save_d4rl``).
@@ -120,24 +134,29 @@ def resolve_dataset(env: str, dataset: str, *, transitions: int = DEFAULT_TRANSI
     if dataset not in NAMED_DATASETS:
         raise DatasetError(f"unknown dataset {dataset!r}: give a path to a D4RL-layout .hdf5 file or one of "
                            f"{list(NAMED_DATASETS)}")
+    transitions = d4rl_transitions(env, dataset) if transitions is None else transitions
     if transitions < 1 or horizon < 1:
         raise DatasetError(f"transitions and horizon must be >= 1, got {transitions} and {horizon}")
-    path = dataset_path(env, dataset, transitions, horizon, seed)
+    try:
+        physics = resolve_physics(physics)
+    except ValueError as e:
+        raise DatasetError(str(e)) from None
+    path = dataset_path(env, dataset, transitions, horizon, seed, physics)
     with _lock(path):
         if os.path.exists(path):
             return _checked(_open_cached(path, env, dataset), env)
         t0 = time.time()
         if dataset == "medium-expert":
-            parts = [resolve_dataset(env, d, transitions=transitions, horizon=horizon, seed=seed, verbose=verbose)
-                     for d in ("medium", "expert")]
+            parts = [resolve_dataset(env, d, transitions=transitions, horizon=horizon, seed=seed, verbose=verbose,
+                                     physics=physics) for d in ("medium", "expert")]
             data = concatenate([p.data for p in parts])
             infos = {k: np.concatenate([read_infos(p.path)[k] for p in parts]) for k in read_infos(parts[0].path)}
         else:
-            data, infos = generate(env, dataset, transitions, horizon, seed, verbose)
-        digest = save_d4rl(data, path, infos, env=env_spec(env).name)
+            data, infos = generate(env, dataset, transitions, horizon, seed, verbose, physics)
+        digest = save_d4rl(data, path, infos, env=env_spec(env).name, dynamics="brax", physics=physics)
     if verbose:
         print(summary_line(env, dataset, data, time.time() - t0, horizon) + f" -> {path}", flush=True)
-    return _checked(DatasetFile(data, path, digest, env_spec(env).name), env)
+    return _checked(DatasetFile(data, path, digest, env_spec(env).name, dynamics="brax", physics=physics), env)
 
 
 def _checked(f: DatasetFile, env: str) -> DatasetFile:
@@ -154,7 +173,7 @@ def _open_cached(path: str, env: str, dataset: str) -> DatasetFile:
     except DatasetError as e:
         raise DatasetError(f"{e}. It is a cached recording: record it again with `python -m minsubdt_jax.data --env "
                            f"{env_spec(env).name} --dataset {dataset} --force` (with the same --transitions, "
-                           f"--horizon and --seed), or delete the file") from None
+                           f"--horizon, --seed and --physics), or delete the file") from None
 
 
 @contextlib.contextmanager

@@ -71,11 +71,15 @@ class Block(nn.Module):
     mlp_ratio: int = 4
 
     @nn.compact
-    def __call__(self, x, attn_mask, deterministic: bool):
+    def __call__(self, x, attn_mask, deterministic: bool, last_only: bool = False):
+        """``x [B, T, d]`` -> ``[B, T, d]``; with ``last_only`` only the last token's output ``[B, 1, d]``: its
+        query attends to every token's keys and values as before, and nothing else is computed for the others."""
         h = nn.LayerNorm()(x)
+        q = h[:, -1:] if last_only else h
+        mask = attn_mask[..., -1:, :] if last_only else attn_mask
         h = nn.MultiHeadDotProductAttention(num_heads=self.n_heads, dropout_rate=self.dropout,
-                                            deterministic=deterministic, attention_fn=_attention)(h, h, mask=attn_mask)
-        x = x + HashDropout(self.dropout)(h, deterministic=deterministic)
+                                            deterministic=deterministic, attention_fn=_attention)(q, h, mask=mask)
+        x = (x[:, -1:] if last_only else x) + HashDropout(self.dropout)(h, deterministic=deterministic)
         h = nn.LayerNorm()(x)
         h = nn.Dense(self.mlp_ratio * self.embed_dim)(h)
         h = nn.Dense(self.embed_dim)(nn.relu(h))
@@ -88,6 +92,11 @@ class DecisionTransformer(nn.Module):
     Call with states ``[B, K, obs]``, actions ``[B, K, act]``, returns_to_go ``[B, K]``, timesteps
     ``[B, K]`` int, mask ``[B, K]`` bool (False on left padding); returns action predictions ``[B, K, act]``
     in ``[-1, 1]``. Padded tokens are never attended to; predictions at padded steps are meaningless.
+
+    ``last_only=True`` (the rollout policy) returns the prediction at the last state ``[B, act]`` alone, and computes
+    only what it depends on: the last action token (which no earlier token sees) is dropped, and the last layer,
+    the final LayerNorm and the head run for that one token. The same function as ``[:, -1]`` of the full call, to
+    float rounding (tested).
     """
 
     act_dim: int
@@ -98,7 +107,8 @@ class DecisionTransformer(nn.Module):
     max_timestep: int = 1000
 
     @nn.compact
-    def __call__(self, states, actions, returns_to_go, timesteps, mask, deterministic: bool = True):
+    def __call__(self, states, actions, returns_to_go, timesteps, mask, deterministic: bool = True,
+                 last_only: bool = False):
         B, K = mask.shape
         d = self.embed_dim
         t_emb = nn.Embed(self.max_timestep, d, name="embed_timestep")(jnp.clip(timesteps, 0, self.max_timestep - 1))
@@ -111,8 +121,13 @@ class DecisionTransformer(nn.Module):
         token_mask = jnp.repeat(mask, 3, axis=1)  # [B, 3K]
         causal = jnp.tril(jnp.ones((3 * K, 3 * K), bool))
         attn_mask = causal[None, None] & token_mask[:, None, None, :]  # [B, 1, 3K, 3K]: no query sees padding
+        if last_only:  # up to the last state token
+            x, attn_mask = x[:, :-1], attn_mask[..., :-1, :-1]
         for i in range(self.n_layers):
-            x = Block(d, self.n_heads, self.dropout, name=f"block_{i}")(x, attn_mask, deterministic)
+            last = last_only and i == self.n_layers - 1
+            x = Block(d, self.n_heads, self.dropout, name=f"block_{i}")(x, attn_mask, deterministic, last)
         x = nn.LayerNorm(name="ln_f")(x)
+        if last_only:
+            return jnp.tanh(nn.Dense(self.act_dim, name="predict_action")(x[:, -1]))
         h_state = x.reshape(B, K, 3, d)[:, :, 1]
         return jnp.tanh(nn.Dense(self.act_dim, name="predict_action")(h_state))

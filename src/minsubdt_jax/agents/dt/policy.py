@@ -54,7 +54,7 @@ def dt_policy(model: DecisionTransformer):
             mask=push(ctx.mask, jnp.ones((n,), bool)),
         )
         pred = model.apply(p.params, ctx.states, ctx.actions, ctx.returns_to_go / p.rtg_scale, ctx.timesteps,
-                           ctx.mask)[:, -1]
+                           ctx.mask, last_only=True)  # only what the next action needs
         return ctx.replace(actions=ctx.actions.at[:, -1].set(pred)), pred
 
     return policy

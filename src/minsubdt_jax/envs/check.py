@@ -1,0 +1,87 @@
+"""Which dynamics did a dataset come from? Replay its transitions from their recorded physics states.
+
+A transition ``(s_t, a_t, s_{t+1})`` of a file that records the physics state each action was taken in (``infos/qpos``
+and ``infos/qvel``: D4RL's v2 files and ours) is replayed in C MuJoCo under each dynamics
+(:mod:`minsubdt_jax.envs.rules`): set the state, take ``a_t`` for ``frame_skip`` substeps, observe, and compare with
+the recorded ``s_{t+1}``. The dynamics the data came from reproduces it to float rounding (the solver's warm start,
+which files do not record, is the one thing replay cannot restore); another dynamics misses by orders of magnitude
+more. brax's and gym's models place the root's z joint differently (``qpos0``), so the file's convention is found
+first, from the recorded state's own observation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .c_backend import Sims
+from .rules import DYNAMICS, TORSO, env_rules, mj_model, observe
+
+DEFAULT_TOLERANCE = 1e-3  # largest |Δobs| of a transition counted as reproduced
+
+
+def replay_errors(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: int = 0) -> dict[str, np.ndarray]:
+    """``{dynamics: [m]}``: the largest one-step ``|Δobs|`` of each of ``m`` sampled transitions under each dynamics.
+
+    ``data`` is a :class:`~minsubdt_jax.data.Trajectories`; ``qpos [n, nq]``, ``qvel [n, nv]`` are its flat per-step
+    physics states (the state each action was taken in, in the order of ``data.valid_mask()``). At most
+    ``transitions`` transitions whose next state is in the file are drawn (``seed``)."""
+    obs = np.asarray(data.observations, np.float64)
+    act = np.clip(np.asarray(data.actions, np.float64), -1.0, 1.0)
+    lengths = np.asarray(data.lengths)
+    ep, t = np.nonzero(data.valid_mask())
+    qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+    if qpos.shape[0] != ep.size or qvel.shape[0] != ep.size:
+        raise ValueError(f"the physics states hold {qpos.shape[0]} rows, the data {ep.size} transitions")
+    nq = mj_model(env, DYNAMICS[0]).nq
+    if qpos.shape[1] != nq:
+        raise ValueError(f"the recorded qpos has {qpos.shape[1]} entries, {env} has {nq}")
+    has_next = np.flatnonzero(t + 1 < lengths[ep])
+    if has_next.size == 0:
+        raise ValueError("no transition with a recorded next state (every episode has length 1)")
+    pick = np.random.default_rng(seed).choice(has_next, min(transitions, has_next.size), replace=False)
+    e, s = ep[pick], t[pick]
+    q, v, a = qpos[pick], qvel[pick], act[e, s]
+    source = _source_convention(env, q, v, obs[e, s])
+    out = {}
+    for dyn in DYNAMICS:
+        rules = env_rules(env, dyn)
+        sims = Sims(env, dyn, len(pick), threads=0)
+        sims.set_state(q + mj_model(env, dyn).qpos0 - mj_model(env, source).qpos0, v)
+        sims.step(a)
+        nxt = observe(rules, np.array(sims.qpos), np.array(sims.qvel), sims.torso(), np)
+        out[dyn] = np.abs(nxt - obs[e, s + 1]).max(axis=1)
+    return out
+
+
+def check_dynamics(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: int = 0) -> dict:
+    """``{dynamics name: largest one-step |Δobs|}`` over sampled transitions of ``data`` (a
+    :class:`~minsubdt_jax.data.Trajectories`) replayed from their recorded physics states ``qpos``, ``qvel``
+    (:func:`replay_errors`; a file's are read by :func:`minsubdt_jax.data.named.file_dynamics`).
+
+    Raises:
+      ValueError: states that do not fit the data."""
+    return {k: float(v.max()) for k, v in replay_errors(env, data, qpos, qvel, transitions=transitions,
+                                                        seed=seed).items()}
+
+
+def dynamics_report(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: int = 0,
+                    tolerance: float = DEFAULT_TOLERANCE) -> dict:
+    """The check as the data CLI prints it: per dynamics the largest and median ``|Δobs|`` and the share of
+    transitions reproduced within ``tolerance``; ``best``: the dynamics that reproduces most (ties: smaller median)."""
+    errs = replay_errors(env, data, qpos, qvel, transitions=transitions, seed=seed)
+    per = {k: {"max": float(e.max()), "median": float(np.median(e)), "reproduced": float(np.mean(e <= tolerance))}
+           for k, e in errs.items()}
+    best = max(per, key=lambda k: (per[k]["reproduced"], -per[k]["median"]))
+    return {"dynamics": per, "best": best, "tolerance": tolerance, "transitions": int(len(next(iter(errs.values()))))}
+
+
+def _source_convention(env: str, qpos, qvel, obs) -> str:
+    """The dynamics whose model the recorded ``qpos`` belongs to: the one whose observation of the recorded state is
+    nearest the recorded observation (the models differ in where the root z joint's zero lies)."""
+    err = {}
+    for dyn in DYNAMICS:
+        sims = Sims(env, dyn, len(qpos), threads=0)
+        sims.set_state(qpos, qvel)
+        err[dyn] = float(np.median(np.abs(observe(env_rules(env, dyn), qpos, qvel, np.array(sims.xpos[:, TORSO]),
+                                                  np).astype(np.float64) - obs).max(axis=1)))
+    return min(err, key=err.get)

@@ -1,0 +1,118 @@
+"""The two physics backends and the two dynamics against independent references: brax's own MJX env, MJX against
+C MuJoCo on the same model, gymnasium's own v4 envs, and the replay check that tells dynamics apart."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from minsubdt_jax.data.dataset import from_padded
+from minsubdt_jax.envs import (MjxEnv, check_dynamics, dynamics_report, env_spec, make_rollout, random_policy,
+                               resolve_physics)
+
+GYM_IDS = {"hopper": "Hopper-v4", "walker": "Walker2d-v4", "halfcheetah": "HalfCheetah-v4"}
+
+
+def _random_rollout(env, physics, dynamics="brax", episodes=16, horizon=200, seed=0):
+    run = make_rollout(env, random_policy, episodes, horizon, physics=physics, dynamics=dynamics)
+    return jax.device_get(run(jnp.zeros(env_spec(env).act_dim), (), jax.random.PRNGKey(seed)))
+
+
+@pytest.mark.slow
+def test_mjx_env_steps_as_brax_own_env():
+    """Our rules on MJX (brax dynamics) are brax's hopper, step for step: same reset from the same key, same
+    observations, rewards and terminations under the same actions."""
+    from brax import envs as brax_envs
+
+    theirs, ours = brax_envs.get_environment("hopper", backend="mjx"), MjxEnv("hopper")
+    key = jax.random.PRNGKey(3)
+    a, b = jax.jit(theirs.reset)(key), jax.jit(ours.reset)(key)
+    step_a, step_b = jax.jit(theirs.step), jax.jit(ours.step)
+    np.testing.assert_array_equal(a.obs, b.obs)
+    for i in range(40):
+        action = jax.random.uniform(jax.random.PRNGKey(i), (3,), minval=-1, maxval=1)
+        a, b = step_a(a, action), step_b(b, action)
+        np.testing.assert_allclose(b.obs, a.obs, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(b.reward, a.reward, rtol=1e-6, atol=1e-6)
+        assert float(a.done) == float(b.done), i
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env", ["hopper", "walker"])
+def test_c_mujoco_and_mjx_roll_out_the_same_episodes(env):
+    """Same model, same resets, same actions (the backends draw both from the same keys): 200 steps of random
+    actions end at the same steps, with returns within 1e-3 relative and identical reset observations."""
+    mjx, c = _random_rollout(env, "mjx"), _random_rollout(env, "mujoco")
+    np.testing.assert_array_equal(c.lengths, mjx.lengths)
+    np.testing.assert_array_equal(c.terminated, mjx.terminated)
+    np.testing.assert_allclose(c.observations[:, 0], mjx.observations[:, 0], rtol=0, atol=1e-6)
+    r_c, r_m = c.rewards.sum(1), mjx.rewards.sum(1)
+    np.testing.assert_allclose(r_c, r_m, rtol=1e-3, atol=1e-3 * np.abs(r_m).mean())
+    np.testing.assert_allclose(c.actions, mjx.actions, rtol=0, atol=1e-6)  # the policy saw the same keys
+
+
+@pytest.mark.slow
+def test_halfcheetah_agrees_in_statistics():
+    """halfcheetah is chaotic (two C runs 1e-7 apart separate after ~100 steps), so only the return distribution
+    is compared: the means of 16 paired episodes differ by less than 4 standard errors."""
+    mjx, c = _random_rollout("halfcheetah", "mjx"), _random_rollout("halfcheetah", "mujoco")
+    assert (c.lengths == 200).all() and (mjx.lengths == 200).all() and not c.terminated.any()
+    r_c, r_m = c.rewards.sum(1), mjx.rewards.sum(1)
+    se = np.sqrt((r_c.var() + r_m.var()) / len(r_c))
+    assert abs(r_c.mean() - r_m.mean()) < 4 * se, (r_c.mean(), r_m.mean(), se)
+    np.testing.assert_allclose(c.rewards[:, :10], mjx.rewards[:, :10], rtol=1e-3, atol=1e-3)  # before chaos
+
+
+@pytest.mark.parametrize("env", ["hopper", "walker", "halfcheetah"])
+def test_d4rl_dynamics_are_gymnasium_v4(env):
+    """The d4rl rules on C MuJoCo against gymnasium's own ``Hopper-v4``/``Walker2d-v4``/``HalfCheetah-v4``: each
+    recorded episode replayed in gymnasium from its recorded reset state with its recorded actions gives the same
+    observations, rewards and termination, over >= 200 steps per env."""
+    gym = pytest.importorskip("gymnasium")
+    ro = _random_rollout(env, "mujoco", "d4rl", episodes=16 if env != "halfcheetah" else 1, horizon=250)
+    g = gym.make(GYM_IDS[env]).unwrapped
+    g.reset(seed=0)
+    steps = 0
+    for i in range(len(ro.lengths)):
+        g.reset(seed=i)
+        g.set_state(ro.qpos[i, 0].astype(np.float64), ro.qvel[i, 0].astype(np.float64))
+        for t in range(int(ro.lengths[i])):
+            np.testing.assert_array_equal(ro.observations[i, t], g._get_obs().astype(np.float32))
+            _, r, term, _, _ = g.step(ro.actions[i, t])
+            np.testing.assert_allclose(ro.rewards[i, t], r, rtol=1e-6, atol=1e-6)
+            last = t == ro.lengths[i] - 1
+            assert term == (last and bool(ro.terminated[i])), (i, t)
+            steps += 1
+    assert steps >= 200
+
+
+def test_check_dynamics_tells_brax_data_from_d4rl_data():
+    """Episodes recorded under each dynamics, replayed from their recorded states: the dynamics that made them
+    reproduces (nearly) every transition, the other almost none."""
+    reports = {}
+    for dyn in ("brax", "d4rl"):
+        ro = _random_rollout("hopper", "mujoco", dyn, episodes=16, horizon=100, seed=1)
+        data = from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
+        mask = data.valid_mask()
+        qpos, qvel = ro.qpos[:, :data.max_len][mask], ro.qvel[:, :data.max_len][mask]
+        err = check_dynamics("hopper", data, qpos, qvel, transitions=300)
+        other = "d4rl" if dyn == "brax" else "brax"
+        assert err[dyn] < 1e-3 and err[other] > 100 * err[dyn], (dyn, err)
+        reports[dyn] = dynamics_report("hopper", data, qpos, qvel, transitions=300)
+        assert reports[dyn]["best"] == dyn and reports[dyn]["dynamics"][dyn]["reproduced"] == 1.0
+        assert reports[dyn]["dynamics"][other]["reproduced"] < 0.5
+
+
+def test_physics_names_are_checked():
+    """One clear error for an unknown physics or dynamics, and for C MuJoCo on a mesh of several devices."""
+    with pytest.raises(ValueError, match="unknown physics 'bullet'"):
+        resolve_physics("bullet")
+    with pytest.raises(ValueError, match="unknown dynamics 'gym'"):
+        make_rollout("hopper", random_policy, 2, 10, physics="mujoco", dynamics="gym")
+
+    class TwoDevices:
+        size = 2
+
+    with pytest.raises(ValueError, match="--physics mujoco runs on one process's CPU cores"):
+        resolve_physics("mujoco", TwoDevices())
+    assert resolve_physics("auto", TwoDevices()) == "mjx" and resolve_physics("auto") == "mujoco"  # on this CPU
