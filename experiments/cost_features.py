@@ -63,8 +63,8 @@ def design_features(env: str, design: str, data, horizon: int):
     return F, cap
 
 
-def analyse(env: str, dataset: str, transitions: int, horizon: int = 1000) -> dict:
-    f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, verbose=True)
+def analyse(env: str, dataset: str, transitions: int | None, horizon: int = 1000, physics: str = "auto") -> dict:
+    f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, verbose=True, physics=physics)
     data = f.data
     R = data.returns
     alive = ~data.terminals
@@ -111,10 +111,11 @@ def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
     p.add_argument("--datasets", nargs="+", default=["medium", "medium-replay", "medium-expert"])
-    p.add_argument("--transitions", type=int, default=100_000)
+    p.add_argument("--transitions", type=int, default=None, help="default: D4RL's size of each dataset")
+    p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
     p.add_argument("--out", default=RESULTS)
     a = p.parse_args()
-    rows = [analyse(e, d, a.transitions) for e in a.envs for d in a.datasets]
+    rows = [analyse(e, d, a.transitions, physics=a.physics) for e in a.envs for d in a.datasets]
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.out, "cost_features.json"), "w") as f:
         json.dump(rows, f, indent=1)

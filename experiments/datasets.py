@@ -1,7 +1,7 @@
 """Record every named dataset and tabulate it, and plot the behaviour policies' training curves.
 
-    python experiments/datasets.py                       # 3 envs x 5 datasets, 100k transitions each
-    python experiments/datasets.py --envs hopper --transitions 1000000
+    python experiments/datasets.py                       # 3 envs x 5 datasets at D4RL's sizes, C MuJoCo on a CPU
+    python experiments/datasets.py --envs hopper --transitions 100000 --physics mjx
     python experiments/datasets.py --datasets medium-replay   # re-record only these; other rows are kept
     python experiments/datasets.py --datasets medium-replay --cached   # tabulate the cached files, no timing
 
@@ -19,7 +19,8 @@ import os
 import time
 
 from minsubdt_jax.behavior.snapshots import load_manifest
-from minsubdt_jax.data.named import DEFAULT_TRANSITIONS, NAMED_DATASETS, dataset_path, resolve_dataset, summary
+from minsubdt_jax.data.named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary
+from minsubdt_jax.envs import PHYSICS, resolve_physics
 
 HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -64,7 +65,7 @@ def kept_rows(a) -> list[dict]:
         return []
     with open(path) as f:
         old = json.load(f)
-    if (old["transitions"], old["seed"]) != (a.transitions, a.seed):
+    if (old["transitions"], old["seed"], old.get("physics", "mjx")) != (a.transitions or "d4rl", a.seed, a.physics):
         return []
     return [r for r in old["rows"] if not (r["env"] in a.envs and r["dataset"] in a.datasets)]
 
@@ -72,22 +73,25 @@ def kept_rows(a) -> list[dict]:
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
-    p.add_argument("--transitions", type=int, default=DEFAULT_TRANSITIONS)
+    p.add_argument("--transitions", type=int, default=None, help="default: D4RL's size of each dataset")
+    p.add_argument("--physics", choices=PHYSICS, default="auto")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--datasets", nargs="+", default=list(NAMED_DATASETS), choices=NAMED_DATASETS)
     p.add_argument("--cached", action="store_true", help="use files already in the cache (no generation time)")
     a = p.parse_args()
+    a.physics = resolve_physics(a.physics)
     os.makedirs(HERE, exist_ok=True)
     rows = kept_rows(a)
     for env in a.envs:
         for ds in a.datasets:
-            path = dataset_path(env, ds, a.transitions, 1000, a.seed)
+            n = a.transitions or d4rl_transitions(env, ds)
+            path = dataset_path(env, ds, n, 1000, a.seed, a.physics)
             if os.path.exists(path) and not a.cached:
                 os.remove(path)
             t0 = time.time()
-            f = resolve_dataset(env, ds, transitions=a.transitions, seed=a.seed, verbose=False)
+            f = resolve_dataset(env, ds, transitions=n, seed=a.seed, verbose=False, physics=a.physics)
             rows.append({"env": env, "dataset": ds, **summary(env, f.data), "seconds": None if a.cached else time.time() - t0,
-                         "file": os.path.basename(f.path), "sha256": f.sha256})
+                         "file": os.path.basename(f.path), "sha256": f.sha256, "physics": a.physics})
             r = rows[-1]
             print(f"{env:12s} {ds:14s} {r['episodes']:6d} {r['transitions']:8d} {r['return_mean']:8.1f} ± "
                   f"{r['return_std']:7.1f} {r['normalized_score_mean']:6.1f} {r['seconds'] or 0:6.1f} s", flush=True)
@@ -95,7 +99,8 @@ def main():
                                                    for d in NAMED_DATASETS)}
     rows.sort(key=lambda r: order[r["env"], r["dataset"]])
     with open(os.path.join(HERE, "datasets.json"), "w") as f:
-        json.dump({"transitions": a.transitions, "seed": a.seed, "rows": rows}, f, indent=1)
+        json.dump({"transitions": a.transitions or "d4rl", "seed": a.seed, "physics": a.physics, "rows": rows}, f,
+                  indent=1)
     lines = ["| env | dataset | episodes | transitions | return (mean ± std) | normalised score | generation (s) | "
              "file (sha256) |", "|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['env']} | {r['dataset']} | {r['episodes']} | {r['transitions']} | {r['return_mean']:.1f} ± "

@@ -57,8 +57,8 @@ def compact(results: dict) -> dict:
             return {k: rnd(v) for k, v in x.items()}
         return x
 
-    return rnd({k: results[k] for k in ("config", "method", "dataset", "train", "eval", "references", "platform")
-                if k in results})
+    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics")
+    return rnd({k: results[k] for k in keep if k in results})
 
 
 def seed_runs(seeds) -> list[tuple[int, int]]:
@@ -87,7 +87,7 @@ def per_seed_results(res: dict, i: int) -> dict:
 
 
 def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds=(0, 1, 2), runs_root="runs/table1",
-              results_root=RESULTS, train_fn=None, log=print) -> dict:
+              results_root=RESULTS, train_fn=None, log=print, physics="auto") -> dict:
     """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
 
     In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
@@ -120,7 +120,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         label = "+".join(ms) + f" {env}-{ds} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
         cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, method=",".join(ms), seed=first, seeds=n,
-                                  out=os.path.join(runs_root, preset, f"{env}-{ds}-{'+'.join(ms)}{suffix}"))
+                                  physics=physics, out=os.path.join(runs_root, preset, f"{env}-{ds}-{'+'.join(ms)}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
         try:
@@ -224,6 +224,8 @@ def main(argv=None) -> int:
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--runs-root", default="runs/table1", help="training run directories (checkpoints)")
+    p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"],
+                   help="who steps the recordings and evaluations (auto: C MuJoCo on a CPU, MJX on a GPU)")
     a = p.parse_args(argv)
     from minsubdt_jax.config import PRESETS
 
@@ -231,7 +233,7 @@ def main(argv=None) -> int:
         p.error(f"--preset must be one of {list(PRESETS)}")
     failed = []
     if a.action in ("all", "run"):
-        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root)
+        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics)
         print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
         failed = st["failed"]
     if a.action in ("all", "aggregate"):

@@ -1,4 +1,4 @@
-"""Named datasets recorded in MJX from the committed behaviour policies (hopper: the cheapest env)."""
+"""Named datasets recorded from the committed behaviour policies (hopper: the cheapest env; C MuJoCo, auto)."""
 
 import h5py
 import numpy as np
@@ -91,6 +91,13 @@ def test_cli_summary_and_bad_input(recorded, capsys):
     assert "hopper/medium:" in out and "normalised score" in out and "cached" in out
     assert data_main(["--env", "hopper", "--dataset", "medium", "--transitions", "0"]) == 2
     assert "transitions and horizon must be >= 1" in capsys.readouterr().err
+    # --check-dynamics on our own recording: replayed from its infos/qpos, qvel, the brax dynamics reproduce it
+    assert data_main(["--env", "hopper", "--dataset", recorded["medium"].path, "--check-dynamics"]) == 0
+    out = capsys.readouterr().out
+    assert "the data came from the brax dynamics (the file says brax)" in out
+    with pytest.raises(SystemExit) as e:  # argparse: usage and exit 2
+        data_main(["--env", "hopper", "--dataset", "medium", "--physics", "bullet"])
+    assert e.value.code == 2 and "invalid choice: 'bullet'" in capsys.readouterr().err
 
 
 def test_medium_replay_weights_stand_for_the_replay_buffer():

@@ -116,3 +116,36 @@ def test_physics_names_are_checked():
     with pytest.raises(ValueError, match="--physics mujoco runs on one process's CPU cores"):
         resolve_physics("mujoco", TwoDevices())
     assert resolve_physics("auto", TwoDevices()) == "mjx" and resolve_physics("auto") == "mujoco"  # on this CPU
+
+
+def test_a_gymnasium_v4_file_trains_and_is_evaluated_in_d4rl_dynamics(tmp_path):
+    """A D4RL-layout file recorded by gymnasium's own Hopper-v4 (none of our attributes): its recorded states
+    replay under the d4rl dynamics, so the run evaluates there and normalises with D4RL's references."""
+    import dataclasses
+    import importlib.util
+    import os
+
+    from minsubdt_jax.config import PRESETS, validate
+    from minsubdt_jax.references import D4RL_REFERENCES
+    from minsubdt_jax.train import train
+
+    pytest.importorskip("gymnasium")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    spec = importlib.util.spec_from_file_location("gymnasium_dataset", os.path.join(root, "experiments",
+                                                                                    "gymnasium_dataset.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    path = str(tmp_path / "hopper-v4-random.hdf5")
+    mod.record("hopper", 32, path, policy="random", horizon=60)
+    cfg = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=path, episode_length=60,
+                              out=str(tmp_path / "run"))
+    res = train(validate(cfg), verbose=False)
+    assert res["physics"]["dynamics"] == "d4rl" and res["physics"]["physics"] == "mujoco"
+    how = res["physics"]["dynamics_from"]
+    assert how["how"].startswith("checked") and how["best"] == "d4rl"
+    assert how["dynamics"]["d4rl"]["reproduced"] == 1.0 and how["dynamics"]["brax"]["reproduced"] < 0.5
+    lo, hi = D4RL_REFERENCES["hopper"]
+    assert (res["references"]["random"], res["references"]["expert"]) == (lo, hi)
+    ev = res["eval"]
+    np.testing.assert_allclose(ev["normalized_score_mean"], np.mean(100 * (np.array(ev["returns"]) - lo) / (hi - lo)),
+                               rtol=1e-6)

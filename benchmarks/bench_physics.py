@@ -1,0 +1,118 @@
+"""Env-steps/s of batched rollouts, per env x physics backend x policy, measured in one run.
+
+    python benchmarks/bench_physics.py --json benchmarks/results/physics.json
+    python benchmarks/bench_physics.py --envs walker --policies sac dt-paper --backends mujoco
+
+Each row rolls out ``--episodes`` episodes with ``minsubdt_jax.envs.make_rollout`` (the program evaluation and
+dataset recording run) and counts the env steps actually simulated; the first call (compile) is timed apart.
+
+Policies:
+- ``random``: uniform actions (the physics alone; hopper and walker fall within ~20-60 steps, so their batches
+  shrink and the rate includes that);
+- ``sac``: the committed SAC expert's stochastic actor (a 2x256 MLP), the policy datasets are recorded with;
+- ``dt-cpu`` / ``dt-paper``: the DT rollout policy at that preset's size (random weights, K = 20 context, the
+  forward pass the evaluation runs), whose action is added at 1e-6 scale to the SAC expert's: the DT's whole cost
+  is paid on every step, and the episodes last as a trained policy's would (an untrained DT falls at once).
+
+C MuJoCo episodes run ``--horizon`` steps; MJX, 10-40x slower here, ``--mjx-horizon`` (a rate, not a total).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from minsubdt_jax.agents.base import PolicyInputs
+from minsubdt_jax.agents.dt.agent import make_dt_agent
+from minsubdt_jax.behavior.networks import policy_step
+from minsubdt_jax.behavior.snapshots import load_policy
+from minsubdt_jax.config import PRESETS
+from minsubdt_jax.envs import env_spec, make_rollout, random_policy
+from minsubdt_jax.envs.c_backend import default_threads
+
+
+def make_policy(env: str, name: str, n: int):
+    """``(policy, params, carry)`` for a row."""
+    spec = env_spec(env)
+    if name == "random":
+        return random_policy, jnp.zeros(spec.act_dim), ()
+    sac = load_policy(env, "expert")
+    if name == "sac":
+        return policy_step, sac, ()
+    agent = make_dt_agent(PRESETS[name.split("-")[1]], spec.obs_dim, spec.act_dim, 1000)
+    inputs = PolicyInputs(params=agent.init_params(jax.random.PRNGKey(0)), state_mean=jnp.zeros(spec.obs_dim),
+                          state_std=jnp.ones(spec.obs_dim), target_return=jnp.float32(0.0),
+                          rtg_scale=jnp.float32(1.0), subtract_rewards=jnp.float32(0.0))
+    return _dt_on_sac(agent.policy), (inputs, sac), agent.initial_carry(n)
+
+
+def _dt_on_sac(dt):
+    def policy(params, carry, obs, prev_reward, t, rng):
+        inputs, sac = params
+        carry, a_dt = dt(inputs, carry, obs, prev_reward, t, rng)
+        return carry, policy_step(sac, (), obs, prev_reward, t, rng)[1] + 1e-6 * a_dt
+
+    return policy
+
+
+def measure(env, backend, name, episodes, horizon):
+    policy, params, carry = make_policy(env, name, episodes)
+    run = make_rollout(env, policy, episodes, horizon, physics=backend)
+    t0 = time.perf_counter()
+    jax.block_until_ready(run(params, carry, jax.random.PRNGKey(1)))
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ro = jax.block_until_ready(run(params, carry, jax.random.PRNGKey(0)))
+    s = time.perf_counter() - t0
+    steps = int(np.asarray(ro.lengths).sum())
+    return {"env": env, "physics": backend, "policy": name, "episodes": episodes, "horizon": horizon,
+            "env_steps": steps, "seconds": s, "compile_s": max(first - s, 0.0), "env_steps_per_s": steps / s,
+            "length_mean": steps / episodes}
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
+    p.add_argument("--backends", nargs="+", default=["mujoco", "mjx"], choices=["mujoco", "mjx"])
+    p.add_argument("--policies", nargs="+", default=["random", "sac", "dt-cpu", "dt-paper"],
+                   choices=["random", "sac", "dt-cpu", "dt-paper"])
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--horizon", type=int, default=1000)
+    p.add_argument("--mjx-horizon", type=int, default=100)
+    p.add_argument("--json", default=None)
+    a = p.parse_args()
+    dev = jax.devices()[0]
+    print(f"# {a.episodes} episodes; C MuJoCo {default_threads()} threads, {a.horizon} steps; MJX {a.mjx_horizon} "
+          f"steps; {dev.platform} {dev.device_kind}, {platform.processor() or platform.machine()}, "
+          f"jax {jax.__version__}")
+    print(f"{'env':>12} {'policy':>9} {'physics':>7} | {'env-steps':>9} {'seconds':>8} {'(compile)':>9} "
+          f"{'mean len':>8} | {'env-steps/s':>11}")
+    rows = []
+    for env in a.envs:
+        for name in a.policies:
+            for backend in a.backends:
+                r = measure(env_spec(env).name, backend, name, a.episodes,
+                            a.horizon if backend == "mujoco" else a.mjx_horizon)
+                rows.append(r)
+                print(f"{r['env']:>12} {name:>9} {backend:>7} | {r['env_steps']:>9} {r['seconds']:>8.2f} "
+                      f"{r['compile_s']:>9.1f} {r['length_mean']:>8.0f} | {r['env_steps_per_s']:>11.0f}", flush=True)
+    for env in a.envs:
+        for name in a.policies:
+            got = {r["physics"]: r["env_steps_per_s"] for r in rows if r["env"] == env_spec(env).name
+                   and r["policy"] == name}
+            if len(got) == 2:
+                print(f"# {env_spec(env).name} {name}: C MuJoCo / MJX = {got['mujoco'] / got['mjx']:.1f}x")
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump({"device": f"{dev.platform} {dev.device_kind}", "jax": jax.__version__,
+                       "threads": default_threads(), "rows": rows}, fh, indent=2)
+
+
+if __name__ == "__main__":
+    main()
