@@ -15,6 +15,10 @@ Policies:
   is paid on every step, and the episodes last as a trained policy's would (an untrained DT falls at once).
 
 C MuJoCo episodes run ``--horizon`` steps; MJX, 10-40x slower here, ``--mjx-horizon`` (a rate, not a total).
+
+``--dt-forward`` times the DT's forward pass alone on ``[episodes, K]`` contexts at the cpu and paper presets: the
+full forward (every token, every layer) against the rollout policy's ``last_only`` forward (the last layer, the
+final LayerNorm and the head for the last state token only), and checks they agree.
 """
 
 from __future__ import annotations
@@ -76,6 +80,38 @@ def measure(env, backend, name, episodes, horizon):
             "length_mean": steps / episodes}
 
 
+def dt_forward(episodes: int, calls: int = 30) -> list[dict]:
+    """Per-call time of the DT forward on ``episodes`` contexts of K = 20, full vs ``last_only``."""
+    from minsubdt_jax.agents.dt.networks import DecisionTransformer
+
+    rows = []
+    for preset in ("cpu", "paper"):
+        cfg = PRESETS[preset]
+        model = DecisionTransformer(act_dim=6, embed_dim=cfg.embed_dim, n_layers=cfg.n_layers, n_heads=cfg.n_heads,
+                                    dropout=cfg.dropout)
+        B, K = episodes, cfg.context_len
+        r = np.random.default_rng(0)
+        x = (jnp.asarray(r.normal(size=(B, K, 17)), jnp.float32), jnp.asarray(r.uniform(-1, 1, (B, K, 6)), jnp.float32),
+             jnp.asarray(r.normal(size=(B, K)), jnp.float32), jnp.tile(jnp.arange(K), (B, 1)), jnp.ones((B, K), bool))
+        params = model.init(jax.random.PRNGKey(0), *x)
+        full = jax.jit(lambda p, *a: model.apply(p, *a)[:, -1])
+        last = jax.jit(lambda p, *a: model.apply(p, *a, last_only=True))
+        out = {}
+        for name, fn in (("full", full), ("last_only", last)):
+            jax.block_until_ready(fn(params, *x))
+            t0 = time.perf_counter()
+            for _ in range(calls):
+                jax.block_until_ready(fn(params, *x))
+            out[name] = (time.perf_counter() - t0) / calls
+        err = float(jnp.abs(full(params, *x) - last(params, *x)).max())
+        rows.append({"preset": preset, "episodes": B, "full_ms": 1e3 * out["full"],
+                     "last_only_ms": 1e3 * out["last_only"], "max_abs_diff": err})
+        print(f"# DT forward, {preset} preset, {B} contexts: full {1e3 * out['full']:.2f} ms, last_only "
+              f"{1e3 * out['last_only']:.2f} ms ({out['full'] / out['last_only']:.2f}x), max |diff| {err:.1e}",
+              flush=True)
+    return rows
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
@@ -85,8 +121,15 @@ def main():
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--horizon", type=int, default=1000)
     p.add_argument("--mjx-horizon", type=int, default=100)
+    p.add_argument("--dt-forward", action="store_true", help="time only the DT forward, full vs last_only")
     p.add_argument("--json", default=None)
     a = p.parse_args()
+    if a.dt_forward:
+        rows = dt_forward(a.episodes)
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump({"jax": jax.__version__, "rows": rows}, fh, indent=2)
+        return
     dev = jax.devices()[0]
     print(f"# {a.episodes} episodes; C MuJoCo {default_threads()} threads, {a.horizon} steps; MJX {a.mjx_horizon} "
           f"steps; {dev.platform} {dev.device_kind}, {platform.processor() or platform.machine()}, "
