@@ -101,6 +101,10 @@ def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:  # argparse: usage and exit 2
         _main(["--env", "ant"], capsys)
     assert e.value.code == 2 and "invalid choice: 'ant'" in capsys.readouterr().err
+    for flag, bad in (("--physics", "bullet"), ("--dynamics", "gym")):
+        with pytest.raises(SystemExit) as e:
+            _main([*SMOKE, flag, bad, "--out", str(out)], capsys)
+        assert e.value.code == 2 and f"invalid choice: '{bad}'" in capsys.readouterr().err and not out.exists()
 
 
 def test_existing_run_needs_resume(full_run, small_dataset_path, capsys):
