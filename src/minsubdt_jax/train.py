@@ -227,12 +227,13 @@ def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Pr
 
 
 def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
-    """The ``metrics.jsonl`` record of one evaluation: per model, its method and normalised score, min-subdominance
-    and return."""
+    """The ``metrics.jsonl`` record of one evaluation: per model, its method and seed, and the mean and the
+    standard deviation over its episodes of the normalised score, min-subdominance and return."""
     rec = {"step": step, "eval_episodes": per_seed[0]["episodes"], "final": final,
-           "eval_method": [e["method"] for e in per_seed]}
+           "eval_method": [e["method"] for e in per_seed], "eval_seed": [e["seed"] for e in per_seed]}
     for key in ("normalized_score", "min_subdominance", "return"):
         rec[f"eval_{key}"] = [e[f"{key}_mean"] for e in per_seed]
+        rec[f"eval_{key}_std"] = [e[f"{key}_std"] for e in per_seed]
     return rec
 
 

@@ -1,0 +1,169 @@
+"""Score curves: several methods x seeds trained as one program with periodic evaluation, and how noisy a score is.
+
+    python experiments/curves.py run --env walker --dataset medium --model cpu --steps 20000 --eval-every 2000
+    python experiments/curves.py run --env hopper --dataset medium-replay --model paper --context 10
+    python experiments/curves.py report                  # every curve under experiments/results/curves/
+
+``run`` trains ``--methods`` (default MinSubDT and DT) x ``--seeds`` models of one ``--model`` size (``cpu``: the
+cpu preset's 64 x 2 DT, lr 3e-4, warm-up 500; ``paper``: the DT paper's 128 x 3, lr 1e-4, warm-up 10k) in one
+program (``python -m minsubdt_jax.train --method a,b --seeds S``), evaluating every model on ``--episodes``
+episodes every ``--eval-every`` steps. It resumes from the run directory's last checkpoint when started again
+(``runs/curves/<name>``), and writes ``experiments/results/curves/<name>.{json,png}`` when done: per evaluation
+step and model, the mean and the standard deviation over episodes of the normalised score.
+
+The noise report separates the two sources of spread of a method's score at one step: the standard error of one
+seed's mean over its episodes (std / sqrt(episodes)), and the spread between seeds (the std of the seed means),
+and gives the seeds and episodes that a 3-point change needs to stand out (2 standard errors of the mean over
+seeds <= 3 points).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results", "curves")
+MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT and optimiser it takes
+
+
+def name_of(a) -> str:
+    return f"{a.env}-{a.dataset}-{a.model}-k{a.context}"
+
+
+def run(a) -> dict:
+    from minsubdt_jax.config import PRESETS, validate
+    from minsubdt_jax.train import train
+
+    out = os.path.join(a.runs_root, name_of(a))
+    cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=0,
+                              seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
+                              eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
+                              physics=a.physics, out=out)
+    res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
+    curve = collect(out, res)
+    os.makedirs(RESULTS, exist_ok=True)
+    with open(os.path.join(RESULTS, name_of(a) + ".json"), "w") as f:
+        json.dump(curve, f, indent=1)
+    plot(curve, os.path.join(RESULTS, name_of(a) + ".png"))
+    return curve
+
+
+def collect(run_dir: str, res: dict) -> dict:
+    """The evaluations of ``metrics.jsonl``: ``{"steps": [...], "models": [{"method", "seed", "mean": [...],
+    "std": [...]}]}`` plus what the run was (config, dataset, physics)."""
+    with open(os.path.join(run_dir, "metrics.jsonl")) as f:
+        evals = [r for r in map(json.loads, filter(str.strip, f)) if "eval_normalized_score" in r]
+    models = [{"method": m["method"], "seed": m["seed"], "mean": [], "std": []} for m in res["models"]]
+    for r in evals:
+        for i, m in enumerate(models):
+            m["mean"].append(r["eval_normalized_score"][i])
+            m["std"].append(r["eval_normalized_score_std"][i])
+    cfg = res["config"]
+    return {"command": " ".join(["python experiments/curves.py run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else None,
+            "config": cfg, "dataset": {k: res["dataset"][k] for k in ("path", "sha256", "episodes", "transitions",
+                                                                        "normalized_score_mean")},
+            "physics": res.get("physics"), "references": res.get("references"),
+            "steps": [r["step"] for r in evals], "episodes": [r["eval_episodes"] for r in evals], "models": models}
+
+
+def noise(curve: dict) -> list[dict]:
+    """Per method and evaluation step: the mean over seeds, the std between seed means, the mean standard error of
+    one seed's mean (episode noise), and the seeds n (at this step's episodes) for 2 std / sqrt(n) <= 3 points."""
+    rows = []
+    for method in dict.fromkeys(m["method"] for m in curve["models"]):
+        ms = [m for m in curve["models"] if m["method"] == method]
+        for j, step in enumerate(curve["steps"]):
+            means = np.array([m["mean"][j] for m in ms])
+            se = np.array([m["std"][j] for m in ms]) / np.sqrt(curve["episodes"][j])
+            between = float(means.std(ddof=1)) if len(ms) > 1 else float("nan")
+            rows.append({"method": method, "step": step, "episodes": curve["episodes"][j], "seeds": len(ms),
+                         "mean": float(means.mean()), "between_seeds_std": between,
+                         "episode_se": float(np.sqrt(np.mean(se ** 2))),
+                         "seeds_for_3_points": int(np.ceil((2 * between / 3) ** 2)) if np.isfinite(between) else None})
+    return rows
+
+
+def plot(curve: dict, png: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    steps = np.array(curve["steps"])
+    for k, method in enumerate(dict.fromkeys(m["method"] for m in curve["models"])):
+        ms = [m for m in curve["models"] if m["method"] == method]
+        means = np.array([m["mean"] for m in ms])
+        for m in ms:
+            ax.plot(steps, m["mean"], color=f"C{k}", alpha=0.3, lw=1)
+        ax.errorbar(steps, means.mean(0), yerr=means.std(0, ddof=1) if len(ms) > 1 else None, color=f"C{k}", lw=2,
+                    capsize=3, label=f"{method} (mean ± std over {len(ms)} seeds)")
+    ds = curve["dataset"]
+    ax.axhline(ds["normalized_score_mean"], color="gray", ls=":", label="dataset mean")
+    c = curve["config"]
+    ax.set(xlabel="gradient step", ylabel=f"normalised score ({curve['episodes'][-1]} episodes per seed)",
+           title=f"{c['env']} {c['dataset']}: DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, "
+                 f"lr {c['learning_rate']:g}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+
+
+def report() -> str:
+    """``experiments/results/curves.md``: every curve's table and its noise."""
+    lines = ["# Score curves", "", "Made by `python experiments/curves.py report` from `experiments/results/curves/*.json`;",
+             "each file names the command that trained it. Scores are normalised (brax dynamics: our references).", ""]
+    for fn in sorted(os.listdir(RESULTS)) if os.path.isdir(RESULTS) else []:
+        if not fn.endswith(".json"):
+            continue
+        with open(os.path.join(RESULTS, fn)) as f:
+            curve = json.load(f)
+        c, ds = curve["config"], curve["dataset"]
+        lines += [f"## {fn[:-5]}", "", f"![curve](curves/{fn[:-5]}.png)", "",
+                  f"`{curve['command']}`; data `{os.path.basename(ds['path'])}` (sha256 {ds['sha256'][:12]}, "
+                  f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised {ds['normalized_score_mean']:.1f}); "
+                  f"DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr {c['learning_rate']:g}, warm-up "
+                  f"{c['warmup_steps']}, batch {c['batch_size']}; physics {(curve.get('physics') or {}).get('physics')}.",
+                  "", "| method | step | seeds x episodes | mean | std between seeds | SE of one seed (episodes) | "
+                  "seeds for ±3 points |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['method']} | {r['step']} | {r['seeds']} x {r['episodes']} | {r['mean']:.1f} | "
+                  f"{r['between_seeds_std']:.1f} | {r['episode_se']:.1f} | {r['seeds_for_3_points']} |"
+                  for r in noise(curve)]
+        lines.append("")
+    text = "\n".join(lines) + "\n"
+    with open(os.path.join(HERE, "results", "curves.md"), "w") as f:
+        f.write(text)
+    return text
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("action", choices=["run", "report"])
+    p.add_argument("--env", default="walker")
+    p.add_argument("--dataset", default="medium")
+    p.add_argument("--methods", default="minsubdt,dt")
+    p.add_argument("--model", default="cpu", choices=sorted(MODELS))
+    p.add_argument("--context", type=int, default=20)
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--steps", type=int, default=20_000)
+    p.add_argument("--eval-every", type=int, default=2000)
+    p.add_argument("--episodes", type=int, default=30)
+    p.add_argument("--chunk-steps", type=int, default=500)
+    p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
+    p.add_argument("--runs-root", default="runs/curves")
+    a = p.parse_args(argv)
+    if a.action == "run":
+        run(a)
+    print(report())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
