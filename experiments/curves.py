@@ -65,7 +65,8 @@ def collect(run_dir: str, res: dict) -> dict:
             m["mean"].append(r["eval_normalized_score"][i])
             m["std"].append(r["eval_normalized_score_std"][i])
     cfg = res["config"]
-    return {"command": " ".join(["python experiments/curves.py run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else None,
+    command = " ".join(["python experiments/curves.py run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else None
+    return {"command": command,
             "config": cfg, "dataset": {k: res["dataset"][k] for k in ("path", "sha256", "episodes", "transitions",
                                                                         "normalized_score_mean")},
             "physics": res.get("physics"), "references": res.get("references"),
@@ -118,7 +119,8 @@ def plot(curve: dict, png: str) -> None:
 
 def report() -> str:
     """``experiments/results/curves.md``: every curve's table and its noise."""
-    lines = ["# Score curves", "", "Made by `python experiments/curves.py report` from `experiments/results/curves/*.json`;",
+    lines = ["# Score curves", "",
+             "Made by `python experiments/curves.py report` from `experiments/results/curves/*.json`;",
              "each file names the command that trained it. Scores are normalised (brax dynamics: our references).", ""]
     for fn in sorted(os.listdir(RESULTS)) if os.path.isdir(RESULTS) else []:
         if not fn.endswith(".json"):
@@ -128,9 +130,10 @@ def report() -> str:
         c, ds = curve["config"], curve["dataset"]
         lines += [f"## {fn[:-5]}", "", f"![curve](curves/{fn[:-5]}.png)", "",
                   f"`{curve['command']}`; data `{os.path.basename(ds['path'])}` (sha256 {ds['sha256'][:12]}, "
-                  f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised {ds['normalized_score_mean']:.1f}); "
-                  f"DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr {c['learning_rate']:g}, warm-up "
-                  f"{c['warmup_steps']}, batch {c['batch_size']}; physics {(curve.get('physics') or {}).get('physics')}.",
+                  f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised "
+                  f"{ds['normalized_score_mean']:.1f}); DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr "
+                  f"{c['learning_rate']:g}, warm-up {c['warmup_steps']}, batch {c['batch_size']}; physics "
+                  f"{(curve.get('physics') or {}).get('physics')}.",
                   "", "| method | step | seeds x episodes | mean | std between seeds | SE of one seed (episodes) | "
                   "seeds for ±3 points |", "|---|---|---|---|---|---|---|"]
         lines += [f"| {r['method']} | {r['step']} | {r['seeds']} x {r['episodes']} | {r['mean']:.1f} | "
