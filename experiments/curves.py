@@ -3,6 +3,7 @@
     python experiments/curves.py run --env walker --dataset medium --model cpu --steps 20000 --eval-every 2000
     python experiments/curves.py run --env hopper --dataset medium-replay --model paper --context 10
     python experiments/curves.py report                  # every curve under experiments/results/curves/
+    python experiments/curves.py ties                    # how many demos share the surrogate return -K beta
 
 ``run`` trains ``--methods`` (default MinSubDT and DT) x ``--seeds`` models of one ``--model`` size (``cpu``: the
 cpu preset's 64 x 2 DT, lr 3e-4, warm-up 500; ``paper``: the DT paper's 128 x 3, lr 1e-4, warm-up 10k) in one
@@ -146,9 +147,36 @@ def report() -> str:
     return text
 
 
+def ties(cells=(("walker", "medium"), ("hopper", "medium-replay"), ("halfcheetah", "medium-expert")),
+         beta: float = 1.0) -> list[dict]:
+    """The demos whose min-subdominance (eq. 2, leave-one-out, engineered costs) is exactly K beta: with alpha >= 0
+    minimised, a demo no better than the others' mean on a feature gets alpha = 0 there, so every demo at or below
+    the mean on all features shares one surrogate return, whatever its true return."""
+    from minsubdt_jax.costs import engineered_costs, spearman
+    from minsubdt_jax.data import resolve_dataset
+    from minsubdt_jax.subdominance import min_subdominance
+
+    rows = []
+    for env, ds in cells:
+        f = resolve_dataset(env, ds, verbose=False)
+        d = f.data
+        F = np.asarray(engineered_costs(env, d.observations, d.lengths, 1000, terminated=d.terminals))
+        ms = np.asarray(min_subdominance(F, F, beta, leave_one_out=True).value)
+        tie = np.isclose(ms, F.shape[1] * beta)
+        rows.append({"env": env, "dataset": ds, "file": os.path.basename(f.path), "sha256": f.sha256,
+                     "episodes": d.num_trajectories, "K": F.shape[1], "tied_share": float(tie.mean()),
+                     "tied_return_min": float(d.returns[tie].min()), "tied_return_max": float(d.returns[tie].max()),
+                     "spearman_all": spearman(-ms, d.returns)})
+        r = rows[-1]
+        print(f"{env} {ds} ({r['file']}, {r['episodes']} episodes, K={r['K']}): {100 * r['tied_share']:.1f} % of the "
+              f"demos at min-subdominance K*beta, true returns {r['tied_return_min']:.1f} .. "
+              f"{r['tied_return_max']:.1f}; Spearman(-ms, return) {r['spearman_all']:.3f}", flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("action", choices=["run", "report"])
+    p.add_argument("action", choices=["run", "report", "ties"])
     p.add_argument("--env", default="walker")
     p.add_argument("--dataset", default="medium")
     p.add_argument("--methods", default="minsubdt,dt")
@@ -162,6 +190,9 @@ def main(argv=None) -> int:
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
     p.add_argument("--runs-root", default="runs/curves")
     a = p.parse_args(argv)
+    if a.action == "ties":
+        ties()
+        return 0
     if a.action == "run":
         run(a)
     print(report())
