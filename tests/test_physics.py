@@ -38,11 +38,12 @@ def test_mjx_env_steps_as_brax_own_env():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("env", ["hopper", "walker"])
-def test_c_mujoco_and_mjx_roll_out_the_same_episodes(env):
+@pytest.mark.parametrize("env, dynamics", [("hopper", "brax"), ("walker", "brax"), ("hopper", "d4rl")])
+def test_c_mujoco_and_mjx_roll_out_the_same_episodes(env, dynamics):
     """Same model, same resets, same actions (the backends draw both from the same keys): 200 steps of random
-    actions end at the same steps, with returns within 1e-3 relative and identical reset observations."""
-    mjx, c = _random_rollout(env, "mjx"), _random_rollout(env, "mujoco")
+    actions end at the same steps, with returns within 1e-3 relative and identical reset observations. The d4rl
+    case is MJX on gym's XML (RK4, 100 solver iterations): the path a D4RL file takes on an accelerator."""
+    mjx, c = _random_rollout(env, "mjx", dynamics), _random_rollout(env, "mujoco", dynamics)
     np.testing.assert_array_equal(c.lengths, mjx.lengths)
     np.testing.assert_array_equal(c.terminated, mjx.terminated)
     np.testing.assert_allclose(c.observations[:, 0], mjx.observations[:, 0], rtol=0, atol=1e-6)
