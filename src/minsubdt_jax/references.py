@@ -22,7 +22,6 @@ REFERENCE_SOURCES = {
     "brax": "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes",
     "d4rl": "D4RL's references (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE)",
 }
-REFERENCE_SOURCE = REFERENCE_SOURCES["brax"]
 
 
 def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:

@@ -14,9 +14,9 @@ import sys
 import time
 
 from ..caches import enable_compilation_cache
-from ..envs import ENVS, PHYSICS, dynamics_report, resolve_physics
+from ..envs import ENVS, PHYSICS, resolve_physics
 from ..rundir import exit_code
-from .d4rl import read_infos
+from .d4rl import replay_report
 from .dataset import DatasetError
 from .named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary_line
 
@@ -66,14 +66,10 @@ def record(env: str, dataset: str, transitions: int | None, horizon: int, seed: 
 
 
 def check(env: str, dataset: str, transitions: int, horizon: int, seed: int, physics: str) -> dict:
-    """Print and return :func:`minsubdt_jax.envs.dynamics_report` for a file (or a cached named dataset)."""
+    """Print and return the replay report (:func:`~minsubdt_jax.data.d4rl.replay_report`) of a file (or a cached
+    named dataset)."""
     f = resolve_dataset(env, dataset, horizon=horizon, seed=seed, physics=physics)
-    infos = read_infos(f.path)
-    if "qpos" not in infos or "qvel" not in infos:
-        raise DatasetError(f"{f.path} records no physics states (infos/qpos, infos/qvel): its dynamics cannot be "
-                           f"checked")
-    n = f.data.num_transitions
-    rep = dynamics_report(env, f.data, infos["qpos"][:n], infos["qvel"][:n], transitions=transitions)
+    rep = replay_report(f, env, transitions)
     print(f"{f.path}: {rep['transitions']} transitions replayed from their recorded states (tolerance "
           f"{rep['tolerance']:g} on the largest |Δobs|)")
     for name, r in rep["dynamics"].items():

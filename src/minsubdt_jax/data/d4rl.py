@@ -147,12 +147,26 @@ def file_dynamics(f: DatasetFile, env: str, dynamics: str | None = None) -> tupl
         return check_dynamics_name(dynamics), {"how": "given"}
     if f.dynamics is not None:
         return f.dynamics, {"how": "recorded in the file"}
-    infos = read_infos(f.path)
-    if "qpos" in infos and "qvel" in infos:
-        n = f.data.num_transitions  # the rows of the loaded episodes (a trailing unfinished one is dropped)
-        report = dynamics_report(env, f.data, infos["qpos"][:n], infos["qvel"][:n])
-        return report["best"], {"how": "checked: replayed from infos/qpos, infos/qvel", **report}
-    return "d4rl", {"how": "a D4RL-layout file without physics states: D4RL's (gym's) dynamics assumed"}
+    infos = read_infos(f.path)  # a damaged file raises here: no fallback
+    if "qpos" not in infos or "qvel" not in infos:
+        return "d4rl", {"how": "a D4RL-layout file without physics states: D4RL's (gym's) dynamics assumed"}
+    report = replay_report(f, env, infos=infos)
+    return report["best"], {"how": "checked: replayed from infos/qpos, infos/qvel", **report}
+
+
+def replay_report(f: DatasetFile, env: str, transitions: int = 2000, infos: dict | None = None) -> dict:
+    """:func:`minsubdt_jax.envs.dynamics_report` of ``f``'s transitions, replayed from its ``infos/qpos`` and
+    ``infos/qvel`` (the rows of its loaded episodes: a trailing unfinished one is dropped); ``infos`` if already
+    read (:func:`read_infos`).
+
+    Raises:
+      DatasetError: the file records no physics states, or its infos are damaged."""
+    infos = read_infos(f.path) if infos is None else infos
+    if "qpos" not in infos or "qvel" not in infos:
+        raise DatasetError(f"{f.path} records no physics states (infos/qpos, infos/qvel): its dynamics cannot be "
+                           f"checked")
+    n = f.data.num_transitions
+    return dynamics_report(env, f.data, infos["qpos"][:n], infos["qvel"][:n], transitions=transitions)
 
 
 def _attr(f: h5py.File, name: str) -> str | None:
