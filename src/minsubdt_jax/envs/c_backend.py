@@ -103,31 +103,30 @@ def make_c_seed_rollout(env: str, policy: Policy, num_episodes: int, horizon: in
         rew_b = np.zeros((N, H), np.float32)
         qpos_b = np.zeros((N, H, sims.qpos.shape[1]), np.float32)
         qvel_b = np.zeros((N, H, sims.qvel.shape[1]), np.float32)
-        done, terminated = np.zeros(N, bool), np.zeros(N, bool)
+        done = np.zeros(N, bool)  # only terminations end an episode before the horizon: done is `terminated`
         length, prev_r = np.zeros(N, np.int32), np.zeros(N, np.float32)
+        qpos, qvel, torso = np.array(sims.qpos), np.array(sims.qvel), sims.torso()
         for t in range(H):
             alive = ~done
             ids = np.flatnonzero(alive).astype(np.int32)
-            qpos, qvel, torso = np.array(sims.qpos), np.array(sims.qvel), sims.torso()
             obs = observe(rules, qpos, qvel, torso, np).astype(np.float32)
             carry, action, rng = decide_s(inputs, carry, obs.reshape(S, n, -1), prev_r.reshape(S, n), t, rng)
             action = np.asarray(action, np.float64).reshape(N, -1)
             sims.step(action[ids], ids)
-            reward, ended = step_outcome(rules, forward_position(rules, qpos, torso), sims.qpos, sims.qvel,
-                                         sims.torso(), action, np)
+            x_before = forward_position(rules, qpos, torso)
+            qpos_b[ids, t], qvel_b[ids, t] = qpos[ids], qvel[ids]
+            qpos, qvel, torso = np.array(sims.qpos), np.array(sims.qvel), sims.torso()  # the next step's state
+            reward, ended = step_outcome(rules, x_before, qpos, qvel, torso, action, np)
             reward = np.where(alive, reward, 0.0).astype(np.float32)
             obs_b[ids, t], act_b[ids, t], rew_b[:, t] = obs[ids], action[ids], reward
-            qpos_b[ids, t], qvel_b[ids, t] = qpos[ids], qvel[ids]
-            ended = alive & ended
-            done |= ended
-            terminated |= ended
+            done |= alive & ended
             length += alive
             prev_r = reward
             if done.all():
                 break
         shape = lambda x: x.reshape((S, n) + x.shape[1:])  # noqa: E731
         return Rollout(observations=shape(obs_b), actions=shape(act_b), rewards=shape(rew_b), lengths=shape(length),
-                       terminated=shape(terminated), qpos=shape(qpos_b), qvel=shape(qvel_b))
+                       terminated=shape(done), qpos=shape(qpos_b), qvel=shape(qvel_b))
 
     return run
 
