@@ -34,7 +34,8 @@ MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT a
 
 
 def name_of(a) -> str:
-    return f"{a.env}-{a.dataset}-{a.model}-k{a.context}"
+    extra = ("" if a.lr_schedule == "constant" else f"-{a.lr_schedule}") + (f"-ema{a.ema:g}" if a.ema else "")
+    return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
 
 def run(a) -> dict:
@@ -45,7 +46,7 @@ def run(a) -> dict:
     cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=0,
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
-                              physics=a.physics, out=out)
+                              physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, out=out)
     res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)
@@ -61,10 +62,20 @@ def collect(run_dir: str, res: dict) -> dict:
     with open(os.path.join(run_dir, "metrics.jsonl")) as f:
         evals = [r for r in map(json.loads, filter(str.strip, f)) if "eval_normalized_score" in r]
     models = [{"method": m["method"], "seed": m["seed"], "mean": [], "std": []} for m in res["models"]]
+    raw = [r for r in evals if "eval_raw_normalized_score" in r]
+    if raw and len(raw) == len(evals) - 1:  # --ema: the periodic evaluations also scored the raw parameters
+        models += [{"method": m["method"] + " (raw params)", "seed": m["seed"], "mean": [], "std": []}
+                   for m in res["models"]]
+    n = len(res["models"])
     for r in evals:
         for i, m in enumerate(models):
-            m["mean"].append(r["eval_normalized_score"][i])
-            m["std"].append(r["eval_normalized_score_std"][i])
+            prefix = "eval_" if i < n else "eval_raw_"
+            if prefix + "normalized_score" not in r:  # the final evaluation scores the average only
+                m["mean"].append(float("nan"))
+                m["std"].append(float("nan"))
+                continue
+            m["mean"].append(r[prefix + "normalized_score"][i % n])
+            m["std"].append(r[prefix + "normalized_score_std"][i % n])
     cfg = res["config"]
     command = " ".join(["python experiments/curves.py run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else None
     return {"command": command,
@@ -82,6 +93,8 @@ def noise(curve: dict) -> list[dict]:
         ms = [m for m in curve["models"] if m["method"] == method]
         for j, step in enumerate(curve["steps"]):
             means = np.array([m["mean"][j] for m in ms])
+            if not np.isfinite(means).all():
+                continue
             se = np.array([m["std"][j] for m in ms]) / np.sqrt(curve["episodes"][j])
             between = float(means.std(ddof=1)) if len(ms) > 1 else float("nan")
             rows.append({"method": method, "step": step, "episodes": curve["episodes"][j], "seeds": len(ms),
@@ -102,16 +115,18 @@ def plot(curve: dict, png: str) -> None:
     for k, method in enumerate(dict.fromkeys(m["method"] for m in curve["models"])):
         ms = [m for m in curve["models"] if m["method"] == method]
         means = np.array([m["mean"] for m in ms])
+        ls = "--" if method.endswith("(raw params)") else "-"
         for m in ms:
-            ax.plot(steps, m["mean"], color=f"C{k}", alpha=0.3, lw=1)
+            ax.plot(steps, m["mean"], color=f"C{k}", alpha=0.3, lw=1, ls=ls)
         ax.errorbar(steps, means.mean(0), yerr=means.std(0, ddof=1) if len(ms) > 1 else None, color=f"C{k}", lw=2,
-                    capsize=3, label=f"{method} (mean ± std over {len(ms)} seeds)")
+                    capsize=3, ls=ls, label=f"{method} (mean ± std over {len(ms)} seeds)")
     ds = curve["dataset"]
     ax.axhline(ds["normalized_score_mean"], color="gray", ls=":", label="dataset mean")
     c = curve["config"]
     ax.set(xlabel="gradient step", ylabel=f"normalised score ({curve['episodes'][-1]} episodes per seed)",
            title=f"{c['env']} {c['dataset']}: DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, "
-                 f"lr {c['learning_rate']:g}")
+                 f"lr {c['learning_rate']:g} {c.get('lr_schedule', 'constant')}"
+                 + (f", EMA {c['ema_decay']:g}" if c.get("ema_decay") else ""))
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(png, dpi=120)
@@ -133,7 +148,9 @@ def report() -> str:
                   f"`{curve['command']}`; data `{os.path.basename(ds['path'])}` (sha256 {ds['sha256'][:12]}, "
                   f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised "
                   f"{ds['normalized_score_mean']:.1f}); DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr "
-                  f"{c['learning_rate']:g}, warm-up {c['warmup_steps']}, batch {c['batch_size']}; physics "
+                  f"{c['learning_rate']:g} {c.get('lr_schedule', 'constant')}, warm-up {c['warmup_steps']}, batch "
+                  f"{c['batch_size']}{', EMA %g of the parameters' % c['ema_decay'] if c.get('ema_decay') else ''}; "
+                  "physics "
                   f"{(curve.get('physics') or {}).get('physics')}.",
                   "", "| method | step | seeds x episodes | mean | std between seeds | SE of one seed (episodes) | "
                   "seeds for ±3 points |", "|---|---|---|---|---|---|---|"]
@@ -187,6 +204,9 @@ def main(argv=None) -> int:
     p.add_argument("--eval-every", type=int, default=2000)
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--chunk-steps", type=int, default=500)
+    p.add_argument("--lr-schedule", default="constant", choices=["constant", "cosine"])
+    p.add_argument("--ema", type=float, default=0.0, help="EMA decay of the parameters (0: off); the raw "
+                   "parameters are scored beside the average")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
     p.add_argument("--runs-root", default="runs/curves")
     a = p.parse_args(argv)

@@ -90,3 +90,44 @@ def test_bc_mlp_trains_and_is_evaluated_like_the_dt(tmp_path, small_dataset_path
     assert [r["step"] for r in records if "eval_normalized_score" in r] == [10, 20]
     params = ocp.CheckpointManager(str(tmp_path / "mlp" / "checkpoints")).restore(20)["params"]
     assert (1, 11, 256) in [np.shape(p) for p in jax.tree.leaves(params)]  # [seeds, obs, hidden]: the MLP's layer
+
+
+def test_cosine_schedule_and_parameter_average_against_hand_computation():
+    """lr: linear warm-up, then constant or a cosine from the peak to 0 at --steps (hand values). EMA: a 6-step
+    chunk keeps e_t = d_t e_{t-1} + (1 - d_t) p_t with d_t = min(d, (1 + t) / (10 + t)), recomputed here step by
+    step from the raw parameters of single jitted steps; the raw parameters are the same as without an EMA."""
+    from minsubdt_jax.agents.base import eval_params, learning_rate, make_train_step
+
+    cfg = dataclasses.replace(PRESETS["smoke"], learning_rate=1e-3, warmup_steps=10, steps=110, mlp_hidden=8,
+                              batch_size=4)
+    cos = dataclasses.replace(cfg, lr_schedule="cosine")
+    lr = lambda c, t: float(learning_rate(c, t))  # noqa: E731
+    assert lr(cfg, 4) == pytest.approx(5e-4) and lr(cfg, 100) == pytest.approx(1e-3)
+    assert lr(cos, 4) == pytest.approx(5e-4) and lr(cos, 10) == pytest.approx(1e-3)
+    assert lr(cos, 60) == pytest.approx(5e-4) and lr(cos, 35) == pytest.approx(1e-3 * (1 + np.cos(np.pi / 4)) / 2)
+    assert lr(cos, 110) == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError, match="--lr-schedule must be one of"):
+        validate(dataclasses.replace(cfg, lr_schedule="linear"))
+    with pytest.raises(ValueError, match="--ema-decay must be in"):
+        validate(dataclasses.replace(cfg, ema_decay=1.0))
+
+    rng = np.random.default_rng(1)
+    n, T, obs, act = 4, 10, 3, 2
+    ds = Trajectories(rng.normal(size=(n, T, obs)).astype(np.float32), rng.uniform(-1, 1, (n, T, act)).astype(
+        np.float32), np.zeros((n, T), np.float32), np.full(n, T, np.int32), np.zeros(n, bool))
+    data = sampler_data(ds, np.zeros((n, T)), np.zeros(obs, np.float32), np.ones(obs, np.float32))
+    agent, tx, d = make_agent("mlp", cfg, obs, act, T), make_optimizer(cos), 0.5
+    plain = init_state(agent, tx, jax.random.PRNGKey(0))
+    state = init_state(agent, tx, jax.random.PRNGKey(0), ema=True)
+    step = jax.jit(make_train_step(agent, tx, cfg.batch_size))
+    ema = plain.params
+    for t in range(6):
+        plain, _ = step(plain, data)
+        dt = min(d, (1 + t) / (10 + t))
+        ema = jax.tree.map(lambda e, p: dt * e + (1 - dt) * p, ema, plain.params)
+    state, _ = make_train_chunk(agent, tx, cfg.batch_size, 6, ema_decay=d)(state, data)
+    for a, b in zip(jax.tree.leaves(state.params), jax.tree.leaves(plain.params)):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    for a, b in zip(jax.tree.leaves(eval_params(state)), jax.tree.leaves(ema)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    assert not np.allclose(jax.tree.leaves(eval_params(state))[0], jax.tree.leaves(state.params)[0])

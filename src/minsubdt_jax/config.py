@@ -44,6 +44,11 @@ class Config:
     warmup_steps: int = 10000
     grad_clip: float = 0.25
     batch_size: int = 64
+    # after the warm-up: constant (DT paper) | cosine (decays to 0 at --steps, as IQL's actor; --steps is then fixed)
+    lr_schedule: str = "constant"
+    # > 0: keep an exponential moving average of the parameters (decay min(d, (1 + t) / (10 + t)) at step t) and
+    # evaluate it; periodic evaluations also score the raw parameters (eval_raw_* in metrics.jsonl)
+    ema_decay: float = 0.0
     # returns
     rtg_scale: float | None = None  # divides returns-to-go; default 1000 for true returns, 1 for subdom
     target_return: float | None = None  # eval conditioning; default 0 for subdom, max dataset return for true
@@ -104,8 +109,9 @@ PRESETS = {
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
+LR_SCHEDULES = ("constant", "cosine")
 CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS), "physics": PHYSICS,
-           "dynamics": DYNAMICS}
+           "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES}
 
 
 def validate(cfg: Config) -> Config:
@@ -140,6 +146,8 @@ def validate(cfg: Config) -> Config:
         raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
     if cfg.embed_dim % cfg.n_heads:
         raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
+    if not 0 <= cfg.ema_decay < 1:
+        raise ValueError(f"--ema-decay must be in [0, 1) (0: off), got {cfg.ema_decay}")
     if not 0 <= cfg.cost_label_noise < 0.5:
         raise ValueError(f"--cost-label-noise must be in [0, 0.5), got {cfg.cost_label_noise}")
     if cfg.rtg_scale is not None and not cfg.rtg_scale > 0:

@@ -15,10 +15,12 @@ import numpy as np
 DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 
 
-def check_run_dir(config: dict, out: str, ckpt_dir: str, resume: bool, resumable: tuple[str, ...]) -> None:
+def check_run_dir(config: dict, out: str, ckpt_dir: str, resume: bool, resumable: tuple[str, ...],
+                  defaults: dict | None = None) -> None:
     """Before anything is written or recorded: ``out`` must be a directory we can create and write in; refuse to
     overwrite a run's checkpoints without ``--resume``; refuse to resume a run whose saved ``config.json``
-    differs from ``config`` in any field outside ``resumable``, or to a ``steps`` below its last checkpoint."""
+    differs from ``config`` in any field outside ``resumable``, or to a ``steps`` below its last checkpoint. A
+    field the saved config lacks (a run of an older version) counts as its value in ``defaults``."""
     check_writable_dir(out)
     cfg_path = os.path.join(out, "config.json")
     steps = checkpoint_steps(ckpt_dir)
@@ -27,6 +29,7 @@ def check_run_dir(config: dict, out: str, ckpt_dir: str, resume: bool, resumable
             raise ValueError(f"--resume: no checkpoint in {out}")
         with open(cfg_path) as f:
             old = json.load(f)
+        old = {**(defaults or {}), **old}
         diff = {k: (old.get(k), v) for k, v in config.items() if k not in resumable and old.get(k) != v}
         if diff:
             raise ValueError(f"--resume: config differs from the checkpointed run in {diff} (old, new)")

@@ -37,7 +37,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from .agents import make_agent
-from .agents.base import PolicyInputs, init_seed_states, make_optimizer, make_train_chunk
+from .agents.base import PolicyInputs, eval_params, init_seed_states, make_optimizer, make_train_chunk
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
 from .data.d4rl import file_dynamics
@@ -71,7 +71,14 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     verbose = verbose and main
     out = cfg.run_dir()
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
-    check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
+    resumable = RESUMABLE_CHANGES if cfg.lr_schedule == "constant" else tuple(c for c in RESUMABLE_CHANGES
+                                                                            if c != "steps")  # the decay's end
+    if resume and cfg.lr_schedule != "constant" and os.path.exists(os.path.join(out, "config.json")):
+        with open(os.path.join(out, "config.json")) as f:
+            if json.load(f)["steps"] != cfg.steps:
+                raise ValueError(f"--resume: --lr-schedule {cfg.lr_schedule} decays to 0 at the run's --steps: resume "
+                                 f"with the same --steps")
+    check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, resumable, dataclasses.asdict(Config()))
     mesh = make_mesh(cfg.devices, cfg.batch_size)  # checked before anything is written
     physics = resolve_physics(cfg.physics, mesh)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
@@ -102,7 +109,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     agent = make_agent(methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
                        max(cfg.episode_length, dataset.max_len))
     tx = make_optimizer(cfg)
-    state = init_seed_states(agent, tx, [s for _, s in models])
+    state = init_seed_states(agent, tx, [s for _, s in models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
     if resume and mngr.latest_step() is not None:
         state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
@@ -135,7 +142,8 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     while step < cfg.steps:
         n = min(cfg.chunk_steps, cfg.steps - step)
         if n not in chunks:
-            chunks[n] = make_train_chunk(agent, tx, cfg.batch_size, n, mesh, seed_axis=True, data_axis=data_axis)
+            chunks[n] = make_train_chunk(agent, tx, cfg.batch_size, n, mesh, seed_axis=True, data_axis=data_axis,
+                                         ema_decay=cfg.ema_decay)
         tc = time.time()
         state, losses = chunks[n](state, data)
         per_seed = np.asarray(gather(losses)).mean(0)  # [S]
@@ -148,7 +156,12 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
         log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
              "chunk_seconds": time.time() - tc})
         if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
-            log(eval_record(step, evaluate(state.params, cfg.eval_episodes_periodic)))
+            rec = eval_record(step, evaluate(eval_params(state), cfg.eval_episodes_periodic))
+            if state.ema_params is not None:  # the raw parameters beside their average
+                raw = eval_record(step, evaluate(state.params, cfg.eval_episodes_periodic))
+                rec.update({k.replace("eval_", "eval_raw_", 1): v for k, v in raw.items() if k.startswith("eval_")
+                            and k not in ("eval_episodes", "eval_method", "eval_seed")})
+            log(rec)
         mngr.save(step, args=ocp.args.StandardSave(state))
         bar.set_postfix(loss=f"{per_seed.mean():.4f}")
         bar.update(n)
@@ -169,7 +182,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                                         for p in per_model]
     if cfg.eval_episodes:
         te = time.time()
-        per = evaluate(state.params, cfg.eval_episodes)
+        per = evaluate(eval_params(state), cfg.eval_episodes)
         results["eval_per_seed"] = per  # one entry per model (its method and seed inside)
         by_method = {m.name: [e for e in per if e["method"] == m.name] for m in methods}
         summary = {k: v[0] if len(v) == 1 else across_seeds(v) for k, v in by_method.items()}

@@ -32,6 +32,18 @@ class TrainState:
     params: Any
     opt_state: Any
     rng: jax.Array
+    ema_params: Any = None  # the parameters' moving average (--ema-decay > 0), else None
+
+
+def ema_decay_at(step, decay: float):
+    """The EMA decay at (0-based) ``step``: ``min(decay, (1 + t) / (10 + t))``, so early averages do not keep the
+    initial parameters (TensorFlow's ``ExponentialMovingAverage(num_updates=t)``)."""
+    return jnp.minimum(decay, (1.0 + step) / (10.0 + step))
+
+
+def eval_params(state: TrainState):
+    """The parameters a run evaluates and reports: the moving average when one is kept, else the raw ones."""
+    return state.params if state.ema_params is None else state.ema_params
 
 
 @struct.dataclass
@@ -59,22 +71,35 @@ class Agent(Protocol):
     def initial_carry(self, n: int) -> Any: ...
 
 
+def learning_rate(cfg, step):
+    """The rate at (0-based) ``step``: the DT paper's linear warm-up over ``warmup_steps``, then constant, or with
+    ``lr_schedule="cosine"`` a cosine decay from the peak at the warm-up's end to 0 at ``steps``."""
+    warm = jnp.minimum((step + 1) / cfg.warmup_steps, 1.0)
+    if cfg.lr_schedule == "constant":
+        return cfg.learning_rate * warm
+    frac = jnp.clip((step - cfg.warmup_steps) / max(cfg.steps - cfg.warmup_steps, 1), 0.0, 1.0)
+    return cfg.learning_rate * warm * 0.5 * (1.0 + jnp.cos(jnp.pi * frac))
+
+
 def make_optimizer(cfg) -> optax.GradientTransformation:
-    """AdamW with the DT paper's linear warm-up to a constant rate, after global-norm clipping."""
-    schedule = lambda step: cfg.learning_rate * jnp.minimum((step + 1) / cfg.warmup_steps, 1.0)  # noqa: E731
+    """AdamW at :func:`learning_rate`'s schedule, after global-norm clipping (DT paper)."""
+    schedule = lambda step: learning_rate(cfg, step)  # noqa: E731
     return optax.flatten(optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
                                      optax.adamw(schedule, weight_decay=cfg.weight_decay)))
 
 
-def init_state(agent: Agent, tx, key) -> TrainState:
-    """Fresh parameters (from one half of ``key``), optimiser state, and the step rng (the other half)."""
+def init_state(agent: Agent, tx, key, ema: bool = False) -> TrainState:
+    """Fresh parameters (from one half of ``key``), optimiser state, and the step rng (the other half); with
+    ``ema`` the moving average starts at the parameters."""
     rng, init_rng = jax.random.split(key)
     params = agent.init_params(init_rng)
-    return TrainState(step=jnp.zeros((), jnp.int32), params=params, opt_state=tx.init(params), rng=rng)
+    return TrainState(step=jnp.zeros((), jnp.int32), params=params, opt_state=tx.init(params), rng=rng,
+                      ema_params=jax.tree.map(jnp.copy, params) if ema else None)  # own buffers: both are donated
 
 
-def make_train_step(agent: Agent, tx, batch_size: int, mesh=None):
-    """Pure ``step(state, data) -> (state, loss)``: sample a batch, forward, backward, clipped AdamW update.
+def make_train_step(agent: Agent, tx, batch_size: int, mesh=None, ema_decay: float = 0.0):
+    """Pure ``step(state, data) -> (state, loss)``: sample a batch, forward, backward, clipped AdamW update, and
+    the parameters' moving average when the state keeps one (decay :func:`ema_decay_at`).
 
     With a ``mesh`` (:func:`minsubdt_jax.parallel.make_mesh`) the batch is split over its devices (data
     parallel); the step computes the same thing on any number of devices."""
@@ -85,20 +110,24 @@ def make_train_step(agent: Agent, tx, batch_size: int, mesh=None):
         loss, grads = jax.value_and_grad(lambda p: agent.loss(p, batch, k_drop))(state.params)
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
-        return TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng), loss
+        ema = state.ema_params
+        if ema is not None:
+            d = ema_decay_at(state.step, ema_decay)
+            ema = jax.tree.map(lambda e, p: d * e + (1.0 - d) * p, ema, params)
+        return TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng, ema_params=ema), loss
 
     return step
 
 
 def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
-                     data_axis: int | None = None):
+                     data_axis: int | None = None, ema_decay: float = 0.0):
     """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``
     (data parallel over ``mesh`` when given: pass ``state`` and ``data`` replicated on it).
 
     With ``seed_axis`` the state has a leading seed axis (:func:`init_seed_states`) and every step is
     ``vmap``-ed over it: S independent models train in one program, ``losses [n_steps, S]``. ``data_axis``
     0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one."""
-    step = make_train_step(agent, tx, batch_size, mesh)
+    step = make_train_step(agent, tx, batch_size, mesh, ema_decay)
     if seed_axis:
         step = jax.vmap(step, in_axes=(0, data_axis))
 
@@ -108,8 +137,8 @@ def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None,
     return jax.jit(chunk, donate_argnums=0)
 
 
-def init_seed_states(agent: Agent, tx, seeds) -> TrainState:
+def init_seed_states(agent: Agent, tx, seeds, ema: bool = False) -> TrainState:
     """One :func:`init_state` per seed, stacked on a leading seed axis ``[S, ...]`` (``vmap`` over the keys, so
     seed s starts exactly where a single-seed run with ``--seed s`` does)."""
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
-    return jax.jit(jax.vmap(lambda k: init_state(agent, tx, k)))(keys)
+    return jax.jit(jax.vmap(lambda k: init_state(agent, tx, k, ema)))(keys)
