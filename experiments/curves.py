@@ -35,6 +35,7 @@ MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT a
 
 def name_of(a) -> str:
     extra = ("" if a.lr_schedule == "constant" else f"-{a.lr_schedule}") + (f"-ema{a.ema:g}" if a.ema else "")
+    extra += f"-costs-{a.costs.replace(',', '+')}" if a.costs else ""
     return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
 
@@ -46,7 +47,8 @@ def run(a) -> dict:
     cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=0,
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
-                              physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, out=out)
+                              physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
+                              out=out)
     res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)
@@ -205,6 +207,7 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--chunk-steps", type=int, default=500)
     p.add_argument("--lr-schedule", default="constant", choices=["constant", "cosine"])
+    p.add_argument("--costs", default=None, help="cost metrics (minsubdt_jax.costs), comma-separated")
     p.add_argument("--ema", type=float, default=0.0, help="EMA decay of the parameters (0: off); the raw "
                    "parameters are scored beside the average")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])

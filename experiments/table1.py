@@ -86,9 +86,15 @@ def per_seed_results(res: dict, i: int) -> dict:
     return out
 
 
+def variant(preset: str, costs: str | None = None) -> str:
+    """The results' folder name: the preset, and the cost metrics when ``--costs`` chose them."""
+    return preset if costs is None else f"{preset}-costs-{costs.replace(',', '+')}"
+
+
 def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds=(0, 1, 2), runs_root="runs/table1",
-              results_root=RESULTS, train_fn=None, log=print, physics="auto") -> dict:
+              results_root=RESULTS, train_fn=None, log=print, physics="auto", costs=None) -> dict:
     """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
+    ``costs`` (``--costs``) chooses the cost metrics; its results go to their own folder (:func:`variant`).
 
     In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
     seeds is one program: ``--method a,b,... --seeds S``, every (method, seed) a model vmapped in one jitted step
@@ -98,7 +104,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.config import PRESETS
 
-    out_dir = result_dir(preset, results_root)
+    out_dir = result_dir(variant(preset, costs), results_root)
     os.makedirs(out_dir, exist_ok=True)
     path = lambda e, d, m, s: os.path.join(out_dir, run_name(e, d, m, s) + ".json")  # noqa: E731
     status = {"done": [], "skipped": [], "failed": []}
@@ -120,7 +126,8 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         label = "+".join(ms) + f" {env}-{ds} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
         cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, method=",".join(ms), seed=first, seeds=n,
-                                  physics=physics, out=os.path.join(runs_root, preset, f"{env}-{ds}-{'+'.join(ms)}{suffix}"))
+                                  physics=physics, costs=costs,
+                                  out=os.path.join(runs_root, variant(preset, costs), f"{env}-{ds}-{'+'.join(ms)}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
         try:
@@ -226,18 +233,29 @@ def main(argv=None) -> int:
     p.add_argument("--runs-root", default="runs/table1", help="training run directories (checkpoints)")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"],
                    help="who steps the recordings and evaluations (auto: C MuJoCo on a CPU, MJX on a GPU)")
+    p.add_argument("--costs", default=None, help="cost metrics (minsubdt_jax.costs), comma-separated; default the "
+                   "env's. Results and their table go to experiments/results/table1/<preset>-costs-<names>/")
     a = p.parse_args(argv)
     from minsubdt_jax.config import PRESETS
 
     if a.preset not in PRESETS:
         p.error(f"--preset must be one of {list(PRESETS)}")
+    if a.costs is not None:
+        from minsubdt_jax.costs import check_costs
+
+        for env in a.envs:
+            try:
+                check_costs(env, a.costs)
+            except ValueError as e:
+                p.error(f"{env}: {e}")
     failed = []
     if a.action in ("all", "run"):
-        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics)
+        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics, costs=a.costs)
         print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
         failed = st["failed"]
     if a.action in ("all", "aggregate"):
-        out = aggregate(a.preset)
+        name = variant(a.preset, a.costs)
+        out = aggregate(name, out_root=RESULTS if a.costs is None else result_dir(name))
         print(markdown(out))
     return 1 if failed else 0
 

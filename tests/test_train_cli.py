@@ -11,6 +11,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 SMOKE = ["--preset", "smoke", "--env", "hopper", "--episode-length", "60"]
+CHOSEN = ["--costs", "x_velocity,energy,fall", "--ema-decay", "0.9"]  # the full run's chosen metrics and averaging
 
 
 def _run(args, env, check=True):
@@ -30,13 +31,15 @@ def _params(run_dir):
 @pytest.fixture(scope="module")
 def full_run(tmp_path_factory, small_dataset_path, cli_env):
     out = tmp_path_factory.mktemp("runs") / "full"
-    p = _run([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-every", "10"], cli_env)
+    p = _run([*SMOKE, *CHOSEN, "--dataset", small_dataset_path, "--out", str(out), "--eval-every", "10"], cli_env)
     return out, p
 
 
 def test_smoke_train_and_evaluate(full_run):
     """The quick start's shape at the smoke preset, with periodic evaluation: `--eval-every 10` over 20 steps
-    logs the evaluation at step 10 and the final one at 20 (normalised score per seed) and plots the score."""
+    logs the evaluation at step 10 and the final one at 20 (normalised score per seed) and plots the score. With
+    `--costs x_velocity,energy,fall` the costs are those three, in that order, for the demos and the rollouts;
+    with `--ema-decay` the step-10 evaluation also scores the raw parameters."""
     out, p = full_run
     assert "Spearman(-min-subdominance, true return)" in p.stdout
     for name in ("config.json", "dataset.json", "metrics.jsonl", "results.json", "learning_curve.png"):
@@ -53,8 +56,11 @@ def test_smoke_train_and_evaluate(full_run):
     ev = res["eval"]
     assert ev["episodes"] == 3 and 1 <= ev["length_mean"] <= 60
     assert evals[-1]["eval_normalized_score"] == [ev["normalized_score_mean"]]
-    assert set(ev["costs_mean"]) == {"x_velocity", "fall"}
-    assert 0 <= ev["min_subdominance_mean"] <= 2 and np.isfinite(ev["normalized_score_mean"])
+    assert list(ev["costs_mean"]) == list(res["dataset"]["costs_mean"]) == ["x_velocity", "energy", "fall"]
+    assert [m["name"] for m in res["dataset"]["cost_metrics"]] == ["x_velocity", "energy", "fall"]
+    assert "energy" in p.stdout.split("costs (lower is better")[1] and len(ev["costs"][0]) == 3
+    assert "eval_raw_normalized_score" in evals[0] and "eval_raw_normalized_score" not in evals[1]
+    assert 0 <= ev["min_subdominance_mean"] <= 3 and np.isfinite(ev["normalized_score_mean"])  # K beta, K = 3
     assert res["dataset"]["episodes"] == 32 and res["references"]["dynamics"] == "brax"
     assert res["method"] == {"name": "minsubdt", "label": "MinSubDT (engg. costs)", "agent": "dt"}
     assert res["platform"]["backend"] == "cpu" and len(res["dataset"]["sha256"]) == 64
@@ -67,7 +73,7 @@ def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_pa
     """Stop after the first chunk (10 steps), resume to 20: identical to the uninterrupted run (which also
     evaluated at step 10: evaluation does not touch training)."""
     out = tmp_path / "resumed"
-    common = [*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0"]
+    common = [*SMOKE, *CHOSEN, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0"]
     assert _main([*common, "--steps", "10"], capsys)[0] == 0
     assert _params(out)[0] == 10
     code, _ = _main([*common, "--steps", "20", "--resume"], capsys)
@@ -96,6 +102,8 @@ def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, capsys):
     assert not out.exists()
     code, err = _main([*SMOKE, "--steps", "0", "--out", str(out)], capsys)
     assert code == 2 and "--steps must be > 0" in err and not out.exists()
+    code, err = _main([*SMOKE, "--costs", "x_velocity,speed", "--out", str(out)], capsys)
+    assert code == 2 and err.strip().count("\n") == 0 and "unknown cost metric 'speed'" in err and not out.exists()
     code, err = _main([*SMOKE, "--returns", "true", "--method", "bc", "--out", str(out)], capsys)
     assert code == 2 and "--returns true means --method dt, not bc" in err and not out.exists()
     with pytest.raises(SystemExit) as e:  # argparse: usage and exit 2

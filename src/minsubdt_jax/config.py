@@ -9,6 +9,7 @@ import types
 import typing
 from dataclasses import dataclass
 
+from .costs import check_costs
 from .envs import DYNAMICS, PHYSICS
 from .methods import METHODS, RETURNS_ALIASES
 from .parallel import distributed_settings
@@ -53,6 +54,10 @@ class Config:
     rtg_scale: float | None = None  # divides returns-to-go; default 1000 for true returns, 1 for subdom
     target_return: float | None = None  # eval conditioning; default 0 for subdom, max dataset return for true
     beta: float = 1.0  # subdominance margin (eq. 1), same for every feature
+    # cost metrics, comma-separated (minsubdt_jax.costs.METRICS: x_velocity, fall, energy, height_steadiness,
+    # uprightness, speed_band[:LO:HI], joint_speed); default the env's: x_velocity, and fall for hopper and walker
+    costs: str | None = None
+    eval_costs: str | None = None  # more cost metrics to report on the rollouts (not trained on), comma-separated
     alpha_max: float | None = None  # optional cap on alpha in eq. 2
     # learned costs (--returns learned, seed eq. 3)
     cost_dim: int = 2  # K', the number of learned cost features
@@ -126,6 +131,10 @@ def validate(cfg: Config) -> Config:
     agents = {METHODS[m].agent for m in cfg.methods}
     if len(agents) > 1:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
+    if cfg.costs is not None:
+        check_costs(cfg.env, cfg.costs)  # one error on an unknown name or a metric the env cannot compute
+    if cfg.eval_costs is not None:
+        check_costs(cfg.env, cfg.eval_costs, "--eval-costs")
     if cfg.dataset_transitions is not None and cfg.dataset_transitions < 1:
         raise ValueError(f"--dataset-transitions must be > 0, got {cfg.dataset_transitions}")
     if cfg.physics_threads < 0:

@@ -1,4 +1,13 @@
-"""Engineered trajectory cost metrics (seed, "Experiments") and their rank agreement with true returns.
+"""Cost metrics: a registry of per-step costs a user chooses from (``--costs``), their trajectory features, and
+their rank agreement with true returns.
+
+A :class:`CostMetric` is a per-step quantity of (observation, action) in the D4RL observation layout, a range
+``[lo, hi]`` that maps it linearly into a per-step cost in [0, 1] (clipped; lower is better, or higher for
+``higher_is_better``), and a charge for each step a terminated trajectory did not live. :data:`METRICS` holds the
+built-ins (:func:`describe_metrics` prints them); each env's default set is the seed's engineered features below.
+A user's own metric is a ``CostMetric`` passed to :func:`cost_metrics` (and ``train(..., metrics=...)``).
+
+The default features (seed, "Experiments"):
 
 The seed uses x-velocity for HalfCheetah and x- and z-velocities for Hopper and Walker, "monotonically
 transformed into cost metrics". Our features, each lower-is-better and in [0, 1]:
@@ -31,78 +40,201 @@ return at +0.74 to +0.92 (``experiments/results/cost_features.md``, ``python exp
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .envs import env_spec
+from .envs import EnvSpec, env_spec
 
 
 @dataclass(frozen=True)
-class CostSpec:
-    """Cost features of one env: the velocity features (observation index and clip range ``[lo, hi]`` of each),
-    then, if ``fall``, the fall feature."""
+class CostMetric:
+    """One cost metric. ``value(obs [..., obs], act [..., act]) -> [...]`` is its per-step quantity; the per-step
+    cost is ``(clip(value, lo, hi) - lo) / (hi - lo)``, or ``(hi - clip(value, lo, hi)) / (hi - lo)`` when
+    ``higher_is_better``; a terminated trajectory is charged ``not_lived`` for each step it did not live
+    (:func:`horizon_average`). ``uses_actions``: ``value`` reads the action (datasets and rollouts have them)."""
 
-    velocity_names: tuple[str, ...]
-    obs_index: tuple[int, ...]
-    lo: tuple[float, ...]
-    hi: tuple[float, ...]
-    fall: bool
+    name: str
+    value: Callable
+    lo: float
+    hi: float
+    higher_is_better: bool = False
+    not_lived: float = 1.0
+    uses_actions: bool = False
+    meaning: str = ""
 
-    @property
-    def names(self) -> tuple[str, ...]:
-        return self.velocity_names + (("fall",) if self.fall else ())
+    def __post_init__(self):
+        if not (isinstance(self.name, str) and self.name and "," not in self.name):
+            raise ValueError(f"a cost metric needs a name without commas, got {self.name!r}")
+        if not (np.isfinite(self.lo) and np.isfinite(self.hi) and self.lo < self.hi):
+            raise ValueError(f"cost metric {self.name!r}: need finite lo < hi, got [{self.lo}, {self.hi}]")
+        if not 0.0 <= self.not_lived <= 1.0:
+            raise ValueError(f"cost metric {self.name!r}: not_lived must be in [0, 1], got {self.not_lived}")
 
-    @property
-    def dim(self) -> int:
-        return len(self.names)
+    def per_step(self, observations, actions):
+        """``[..., obs]``, ``[..., act]`` -> per-step costs ``[...]`` in [0, 1]."""
+        v = jnp.clip(jnp.asarray(self.value(observations, actions), jnp.float32), self.lo, self.hi)
+        return ((self.hi - v) if self.higher_is_better else (v - self.lo)) / (self.hi - self.lo)
+
+    def record(self) -> dict:
+        """What ``results.json`` says of the metric."""
+        return {"name": self.name, "lo": self.lo, "hi": self.hi, "higher_is_better": self.higher_is_better,
+                "not_lived": self.not_lived, "meaning": self.meaning}
 
 
-def engineered_spec(env: str) -> CostSpec:
-    """Cost features of ``env``: x-velocity (all; the clip range covers random to expert gaits, m/s) and, for the
-    envs that terminate (hopper, walker), the fall feature."""
-    spec = env_spec(env)
-    x_hi = {"hopper": 4.0, "walker": 6.0, "halfcheetah": 15.0}[spec.name]
-    return CostSpec(("x_velocity",), (spec.x_velocity_index,), (-1.0,), (x_hi,), fall=spec.terminates)
+def _x_velocity(s: EnvSpec) -> CostMetric:
+    hi = {"hopper": 4.0, "walker": 6.0, "halfcheetah": 15.0}[s.name]  # covers random to expert gaits, m/s
+    i = s.x_velocity_index
+    return CostMetric("x_velocity", lambda o, a: o[..., i], -1.0, hi, higher_is_better=True,
+                      meaning=f"forward speed v_x, from -1 (cost 1) to {hi:g} m/s (cost 0)")
 
 
-def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, terminated):
-    """Trajectory cost features ``f(xi)`` (see module docstring).
+def _fall(s: EnvSpec) -> CostMetric:
+    if not s.terminates:
+        raise ValueError(f"cost metric 'fall' needs an env that terminates (hopper, walker); {s.name} never falls")
+    return CostMetric("fall", lambda o, a: jnp.zeros(o.shape[:-1]), 0.0, 1.0,
+                      meaning="share of the horizon not lived after a fall: 0 per step lived, 1 per step not lived")
+
+
+def _energy(s: EnvSpec) -> CostMetric:
+    return CostMetric("energy", lambda o, a: jnp.mean(jnp.square(a), axis=-1), 0.0, 1.0, uses_actions=True,
+                      meaning="control energy: mean a^2 over the action dimensions (the ctrl-cost term of the reward, "
+                              "actions in [-1, 1])")
+
+
+def _height_steadiness(s: EnvSpec) -> CostMetric:
+    i = s.x_velocity_index + 1
+    return CostMetric("height_steadiness", lambda o, a: jnp.abs(o[..., i]), 0.0, 3.0,
+                      meaning="torso height held steady: |v_z| of the torso, from 0 to 3 m/s")
+
+
+def _uprightness(s: EnvSpec) -> CostMetric:
+    return CostMetric("uprightness", lambda o, a: jnp.abs(o[..., 1]), 0.0, 1.0,
+                      meaning="torso upright: |pitch angle| of the torso, from 0 to 1 rad")
+
+
+def _joint_speed(s: EnvSpec) -> CostMetric:
+    i, hi = s.x_velocity_index + 3, 30.0 if s.name == "halfcheetah" else 10.0
+    return CostMetric("joint_speed", lambda o, a: jnp.mean(jnp.abs(o[..., i:]), axis=-1), 0.0, hi,
+                      meaning=f"smooth joints: mean |angular velocity| of the leg joints, from 0 to {hi:g} rad/s")
+
+
+SPEED_BANDS = {"hopper": (2.0, 3.0), "walker": (2.5, 3.5), "halfcheetah": (4.0, 6.0)}  # default bands, m/s
+
+
+def _speed_band(s: EnvSpec, lo: float | None = None, hi: float | None = None) -> CostMetric:
+    lo, hi = SPEED_BANDS[s.name] if lo is None else (lo, hi)
+    if not lo < hi:
+        raise ValueError(f"cost metric speed_band:{lo:g}:{hi:g}: need LO < HI")
+    i, sat = s.x_velocity_index, 5.0 if s.name == "halfcheetah" else 2.0
+    name = "speed_band" if (lo, hi) == SPEED_BANDS[s.name] else f"speed_band:{lo:g}:{hi:g}"
+    return CostMetric(name, lambda o, a: jnp.maximum(jnp.maximum(lo - o[..., i], o[..., i] - hi), 0.0), 0.0, sat,
+                      meaning=f"forward speed in a target band: distance of v_x from [{lo:g}, {hi:g}] m/s, 0 inside, "
+                              f"1 from {sat:g} m/s outside (speed_band:LO:HI sets the band)")
+
+
+# name -> factory(env spec, *float parameters) -> CostMetric; a factory raises ValueError where the env cannot have it
+METRICS: dict[str, Callable[..., CostMetric]] = {
+    "x_velocity": _x_velocity, "fall": _fall, "energy": _energy, "height_steadiness": _height_steadiness,
+    "uprightness": _uprightness, "speed_band": _speed_band, "joint_speed": _joint_speed}
+
+
+def default_costs(env: str) -> tuple[str, ...]:
+    """The env's default metrics: x_velocity, and fall where the env terminates (hopper, walker)."""
+    return ("x_velocity", "fall") if env_spec(env).terminates else ("x_velocity",)
+
+
+def metric(env: str, name: str) -> CostMetric:
+    """The built-in metric ``name`` (``NAME`` or ``NAME:P1:P2``, e.g. ``speed_band:2:3``) for ``env``."""
+    base, *params = name.strip().split(":")
+    if base not in METRICS:
+        raise ValueError(f"unknown cost metric {name!r}; choose from {sorted(METRICS)}")
+    try:
+        values = [float(p) for p in params]
+    except ValueError:
+        raise ValueError(f"cost metric {name!r}: parameters must be numbers") from None
+    if values and base != "speed_band":
+        raise ValueError(f"cost metric {name!r}: only speed_band takes parameters (speed_band:LO:HI)")
+    if base == "speed_band" and len(values) not in (0, 2):
+        raise ValueError(f"cost metric {name!r}: speed_band takes two parameters, speed_band:LO:HI (m/s)")
+    return METRICS[base](env_spec(env), *values)
+
+
+def cost_metrics(env: str, costs: str | Sequence[str | CostMetric] | None = None) -> tuple[CostMetric, ...]:
+    """The metrics of ``--costs``: ``None`` (the env's default set), a comma-separated string of names, or a
+    sequence of names and :class:`CostMetric` (a user's own). Raises ValueError on an unknown name, a metric the
+    env cannot compute, a repeated name, or an empty list."""
+    items = default_costs(env) if costs is None else costs.split(",") if isinstance(costs, str) else tuple(costs)
+    out = tuple(c if isinstance(c, CostMetric) else metric(env, c) for c in items)
+    names = [m.name for m in out]
+    if not out or len(set(names)) != len(names):
+        raise ValueError(f"--costs needs one or more distinct metrics, got {names}")
+    return out
+
+
+def check_costs(env: str, costs: str, flag: str = "--costs") -> tuple[CostMetric, ...]:
+    """:func:`cost_metrics` of a ``--costs`` flag, its error prefixed with the flag."""
+    try:
+        return cost_metrics(env, costs)
+    except ValueError as e:
+        raise ValueError(f"{flag} {costs}: {e}") from None
+
+
+def describe_metrics(env: str) -> list[str]:
+    """One line per built-in metric ``env`` can compute: its name and meaning."""
+    lines = []
+    for name in METRICS:
+        try:
+            lines.append(f"{name}: {metric(env, name).meaning}")
+        except ValueError as e:
+            lines.append(f"{name}: not for {env} ({e})")
+    return lines
+
+
+def trajectory_costs(metrics: Sequence[CostMetric], observations, lengths, horizon: int = 1000, *, terminated,
+                     actions=None):
+    """Trajectory cost features ``[N, K]`` in [0, 1], one column per metric in order (module docstring).
 
     Args:
-      env: env name.
-      observations: ``[N, T, obs]`` padded states (entries past ``lengths`` are ignored).
+      metrics: the K metrics (:func:`cost_metrics`).
+      observations: ``[N, T, obs]`` padded states (entries past ``lengths`` are ignored); actions ``[N, T, act]``
+        (needed by a metric that ``uses_actions``).
       lengths: ``[N]`` valid steps per trajectory, each ``<= horizon``.
       horizon: the episode horizon H over which costs are averaged.
       terminated: ``[N]`` bool, the trajectory ended by termination (a fall), not by a time-out or the data's end.
-    Returns:
-      ``[N, K]`` non-negative, lower-is-better costs in [0, 1], in the order of ``engineered_spec(env).names``.
     """
-    cs = engineered_spec(env)
     obs = jnp.asarray(observations)
     lengths = jnp.asarray(lengths)
     if obs.ndim != 3 or lengths.shape != obs.shape[:1]:
         raise ValueError(f"need observations [N, T, obs] and lengths [N], got {obs.shape} and {lengths.shape}")
     if not isinstance(lengths, jax.core.Tracer) and np.any(np.asarray(lengths) > horizon):
         raise ValueError(f"a trajectory is longer ({int(np.max(np.asarray(lengths)))}) than the horizon {horizon}")
-    v = obs[..., list(cs.obs_index)]  # [N, T, Kv]
-    lo, hi = jnp.asarray(cs.lo), jnp.asarray(cs.hi)
-    per_step = (hi - jnp.clip(v, lo, hi)) / (hi - lo)
-    if cs.fall:  # per-step cost 0 while upright: only the steps not lived count
-        per_step = jnp.concatenate([per_step, jnp.zeros_like(per_step[..., :1])], axis=-1)
-    return horizon_average(per_step, lengths, horizon, terminated)
+    if actions is None and any(m.uses_actions for m in metrics):
+        raise ValueError(f"cost metrics {[m.name for m in metrics if m.uses_actions]} need the actions")
+    act = None if actions is None else jnp.asarray(actions)
+    per_step = jnp.stack([m.per_step(obs, act) for m in metrics], axis=-1)
+    charge = jnp.asarray([m.not_lived for m in metrics], per_step.dtype)
+    return horizon_average(per_step, lengths, horizon, terminated, charge)
 
 
-def horizon_average(per_step, lengths, horizon: int, terminated):
+def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, terminated, actions=None,
+                     costs: str | Sequence[str | CostMetric] | None = None):
+    """:func:`trajectory_costs` of ``cost_metrics(env, costs)`` (default: the env's engineered features)."""
+    return trajectory_costs(cost_metrics(env, costs), observations, lengths, horizon, terminated=terminated,
+                            actions=actions)
+
+
+def horizon_average(per_step, lengths, horizon: int, terminated, charge=1.0):
     """Per-step costs ``[N, T, K]`` in [0, 1] -> ``[N, K]`` trajectory features (module docstring): averaged over
-    the horizon with every step not lived charged the worst cost 1 for a terminated trajectory ``terminated
-    [N]``, averaged over the steps lived for one cut off."""
+    the horizon with every step not lived charged ``charge`` (``[K]`` or a scalar; 1 = the worst cost) for a
+    terminated trajectory ``terminated [N]``, averaged over the steps lived for one cut off."""
     valid = (jnp.arange(per_step.shape[1])[None, :] < lengths[:, None])[..., None]
     lived = jnp.sum(jnp.where(valid, per_step, 0.0), axis=1)
     L = lengths[:, None].astype(per_step.dtype)
     fell = jnp.asarray(terminated, bool)[:, None]
-    return jnp.where(fell, (lived + horizon - L) / horizon, lived / jnp.maximum(L, 1.0))
+    return jnp.where(fell, (lived + charge * horizon - charge * L) / horizon, lived / jnp.maximum(L, 1.0))
 
 
 def spearman(a, b) -> float:

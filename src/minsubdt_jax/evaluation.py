@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .costs import engineered_costs, engineered_spec
+from .costs import CostMetric, cost_metrics, trajectory_costs
 from .envs import make_seed_rollout
 from .parallel import gather
 from .references import normalized_score
@@ -64,26 +64,35 @@ class EvalResult:
 
 
 def score_episodes(env: str, observations, lengths, rewards, *, terminated, horizon: int, demo_costs=None, beta=1.0,
-                   alpha_max=None, learned=None, demo_features=None, dynamics: str = "brax") -> EvalResult:
+                   alpha_max=None, learned=None, demo_features=None, dynamics: str = "brax", actions=None,
+                   metrics: tuple[CostMetric, ...] | None = None,
+                   extra_metrics: tuple[CostMetric, ...] = ()) -> EvalResult:
     """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored),
     ``terminated [n]`` (ended by a fall, else by the horizon: costs treat the two apart, :mod:`minsubdt_jax.costs`).
 
     With ``demo_costs [M, K]`` (the dataset's engineered features) each episode's min-subdominance (eq. 2, margin
     ``beta``, cap ``alpha_max``) against them is computed, and whether it beats their mean on every feature.
     With ``learned`` (a :class:`~minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']``, the
-    min-subdominance on the learned features too. Normalised with the references of ``dynamics``.
+    min-subdominance on the learned features too. Normalised with the references of ``dynamics``. The cost
+    features are ``metrics``' (default: the env's, :func:`~minsubdt_jax.costs.cost_metrics`), from the
+    observations and ``actions [n, T, act]``; ``extra_metrics`` (``--eval-costs``) add columns that are reported
+    only: min-subdominance and beating the mean demo use ``metrics``' columns, which come first.
     """
     lengths = np.asarray(lengths)
     valid = np.arange(np.shape(rewards)[1])[None, :] < lengths[:, None]
     returns = np.where(valid, np.asarray(rewards), 0.0).sum(1)
-    costs = np.asarray(engineered_costs(env, observations, lengths, horizon, terminated=terminated))
+    metrics = cost_metrics(env) if metrics is None else tuple(metrics)
+    k = len(metrics)
+    extra = tuple(m for m in extra_metrics if m.name not in {n.name for n in metrics})
+    costs = np.asarray(trajectory_costs(metrics + extra, observations, lengths, horizon, terminated=terminated,
+                                        actions=actions))
     ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized_score(env, returns, dynamics), costs=costs,
-                    cost_names=engineered_spec(env).names)
+                    cost_names=tuple(m.name for m in metrics + extra))
     if demo_costs is not None:
-        demo_costs = np.asarray(demo_costs)
-        ev.min_subdominance = np.asarray(min_subdominance(costs, demo_costs, beta, alpha_max=alpha_max).value)
+        demo_costs, own = np.asarray(demo_costs), costs[:, :k]
+        ev.min_subdominance = np.asarray(min_subdominance(own, demo_costs, beta, alpha_max=alpha_max).value)
         mean = demo_costs.mean(0)  # dominates the mean demo: no worse on any feature, better on one
-        ev.beats_mean_demo = np.all(costs <= mean, axis=1) & np.any(costs < mean, axis=1)
+        ev.beats_mean_demo = np.all(own <= mean, axis=1) & np.any(own < mean, axis=1)
     if learned is not None:
         feats = learned.features(observations, lengths, terminated)
         ev.learned_min_subdominance = np.asarray(
@@ -114,11 +123,12 @@ def episodes_to_run(num_episodes: int, mesh=None) -> int:
 
 def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int, seeds, demo_costs, beta=1.0,
                     alpha_max=None, learned=None, demo_features=None, mesh=None, physics: str = "auto",
-                    dynamics: str = "brax", threads: int = 0) -> list[EvalResult]:
+                    dynamics: str = "brax", threads: int = 0, metrics=None, extra_metrics=()) -> list[EvalResult]:
     """Roll out ``agent``'s policy for S models (``inputs [S, ...]``, :class:`~minsubdt_jax.agents.base.PolicyInputs`)
     and score each seed's first ``num_episodes`` episodes against the demos (:func:`score_episodes`).
     ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed). The episodes run in
-    ``physics`` under ``dynamics`` and are normalised with that dynamics' references."""
+    ``physics`` under ``dynamics`` and are normalised with that dynamics' references; ``metrics`` are the demo
+    costs' (default: the env's)."""
     carry = agent.initial_carry(episodes_to_run(num_episodes, mesh))
     ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
                        mesh=mesh, physics=physics, dynamics=dynamics, threads=threads)
@@ -126,7 +136,8 @@ def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int,
                            ro.rewards[i, :num_episodes], terminated=ro.terminated[i, :num_episodes],
                            horizon=horizon, demo_costs=demo_costs, beta=beta, alpha_max=alpha_max,
                            learned=None if learned is None else learned[i],
-                           demo_features=None if demo_features is None else demo_features[i], dynamics=dynamics)
+                           demo_features=None if demo_features is None else demo_features[i], dynamics=dynamics,
+                           actions=ro.actions[i, :num_episodes], metrics=metrics, extra_metrics=extra_metrics)
             for i in range(len(seeds))]
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import Config
-from .costs import engineered_costs, engineered_spec, spearman
+from .costs import CostMetric, cost_metrics, spearman, trajectory_costs
 from .data import DatasetFile, SamplerData, resolve_dataset, sampler_data
 from .learned_costs import LearnedCostConfig, LearnedCosts, train_learned_costs
 from .methods import Method
@@ -22,7 +22,8 @@ class Prepared:
 
     Attributes:
       source: the dataset and its file (path, content hash).
-      costs: ``[N, K]`` engineered cost features of the demos (evaluation compares rollouts with them).
+      costs: ``[N, K]`` the demos' cost features on ``metrics`` (evaluation compares rollouts with them).
+      metrics: the K cost metrics (``--costs``, or a user's own; :mod:`minsubdt_jax.costs`).
       features: ``[N, K']`` the features min-subdominance used (engineered, or learned for learned costs).
       learned: the learned cost model, for a learned-cost method.
       min_subdominance: ``[N]`` each demo's min-subdominance against the others (eq. 2, leave-one-out).
@@ -43,6 +44,7 @@ class Prepared:
     rtg_scale: float
     target_return: float
     dynamics: str = "brax"
+    metrics: tuple[CostMetric, ...] = ()
 
     def summary(self, env: str) -> dict:
         """The dataset block of ``results.json``."""
@@ -53,11 +55,12 @@ class Prepared:
             "episodes": data.num_trajectories, "transitions": data.num_transitions,
             "return_mean": float(data.returns.mean()), "return_std": float(data.returns.std()),
             "normalized_score_mean": float(normalized_score(env, data.returns, self.dynamics).mean()),
-            "costs_mean": dict(zip(engineered_spec(env).names, map(float, self.costs.mean(0)))),
+            "costs_mean": dict(zip((m.name for m in self.metrics), map(float, self.costs.mean(0)))),
+            "cost_metrics": [m.record() for m in self.metrics],
             "min_subdominance_mean": float(ms.mean()), "min_subdominance_std": float(ms.std()),
             "spearman_neg_min_subdominance_vs_return": spearman(-ms, data.returns),
             "min_subdominance_features": "learned" if self.learned else "engineered",
-            # up to 300 demos' engineered cost features, for the demos-vs-rollouts scatter of experiments/table1.py
+            # up to 300 demos' cost features, for the demos-vs-rollouts scatter of experiments/table1.py
             "costs_sample": self.costs[np.sort(np.random.default_rng(0).permutation(len(self.costs))[:300])].tolist(),
         }
         if self.learned:
@@ -73,9 +76,10 @@ def load(cfg: Config, verbose: bool = True, physics: str | None = None) -> Datas
 
 
 def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFile | None = None,
-            dynamics: str = "brax") -> Prepared:
+            dynamics: str = "brax", metrics=None) -> Prepared:
     """Load (or record) ``cfg.dataset`` for ``cfg.env`` (or take ``source``, already loaded), check it, and build
-    ``method``'s training data; ``dynamics`` are the data's (its scores' references).
+    ``method``'s training data; ``dynamics`` are the data's (its scores' references). The cost features are
+    ``metrics`` (names or :class:`~minsubdt_jax.costs.CostMetric`), else ``cfg.costs``, else the env's default.
 
     Raises ValueError (before anything is written) on data that cannot be used: see the checks below and
     :func:`~minsubdt_jax.data.resolve_dataset`."""
@@ -87,8 +91,9 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
     if dataset.num_trajectories < 2:
         raise ValueError(f"{path}: the dataset has {dataset.num_trajectories} episode; min-subdominance scores each "
                          f"demonstration against the others and needs at least 2")
-    costs = np.asarray(engineered_costs(cfg.env, dataset.observations, dataset.lengths, cfg.episode_length,
-                                        terminated=dataset.terminals))
+    metrics = cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)
+    costs = np.asarray(trajectory_costs(metrics, dataset.observations, dataset.lengths, cfg.episode_length,
+                                        terminated=dataset.terminals, actions=dataset.actions))
     with np.errstate(over="ignore", invalid="ignore"):
         mean, std = dataset.state_stats()
     if not (np.isfinite(mean).all() and np.isfinite(std).all()):
@@ -111,7 +116,7 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
         raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
     prep = Prepared(source=source, costs=costs, features=features, learned=learned, min_subdominance=ms,
                     sampler=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale,
-                    target_return=target, dynamics=dynamics)
+                    target_return=target, dynamics=dynamics, metrics=metrics)
     if verbose:
         _report(prep, cfg)
     return prep

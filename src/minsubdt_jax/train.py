@@ -40,6 +40,7 @@ from .agents import make_agent
 from .agents.base import PolicyInputs, eval_params, init_seed_states, make_optimizer, make_train_chunk
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
+from .costs import cost_metrics
 from .data.d4rl import file_dynamics
 from .envs import physics_record, resolve_physics
 from .evaluation import across_seeds, evaluate_policy
@@ -56,14 +57,16 @@ RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_peri
 
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True,
-          progress_fn: Callable[[int, dict], None] | None = None) -> dict:
+          progress_fn: Callable[[int, dict], None] | None = None, metrics=None) -> dict:
     """Run one training job end to end in ``cfg.run_dir()``; returns the contents of ``results.json``.
 
     One model per method of ``cfg.methods`` and seed (``cfg.seed ...``, ``cfg.seeds`` of them), method-major, trains
     in one program: they share the dataset and the agent, and differ in their return tokens and seeds. In a
     multi-process job (``cfg.num_processes``) every process calls this, and only process 0 writes the run directory
     (checkpoints are written jointly by orbax). ``progress_fn(step, record)`` (as brax's) receives every record
-    written to ``metrics.jsonl``: the loss after each chunk and each evaluation's scores (lists over the models)."""
+    written to ``metrics.jsonl``: the loss after each chunk and each evaluation's scores (lists over the models).
+    ``metrics`` (names or :class:`~minsubdt_jax.costs.CostMetric`, a user's own) replace ``cfg.costs`` as the cost
+    metrics; ``results.json`` names them (``dataset.cost_metrics``). A resumed run needs the same ones again."""
     cfg = validate(cfg)
     methods = [get_method(m) for m in cfg.methods]
     init_distributed(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
@@ -84,6 +87,10 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     models = [(m, s) for m in methods for s in seeds]
     # before anything is written: bad data changes nothing. Only learned costs depend on the seed.
+    if metrics is not None and cfg.costs is not None:
+        raise ValueError("give the cost metrics once: as cfg.costs (names) or as train(..., metrics=...)")
+    if metrics is not None:
+        cost_metrics(cfg.env, metrics)  # checked before anything is written
     source = load(cfg, verbose, physics)
     dynamics, dynamics_how = file_dynamics(source, cfg.env, cfg.dynamics)
     if verbose:
@@ -92,7 +99,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     for m, s in models:
         key = (m.name, s if m.features == "learned" else None)
         if key not in preps:
-            preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source, dynamics)
+            preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source, dynamics, metrics)
         per_model.append(preps[key])
     data, data_axis = stack_return_tokens(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
@@ -200,6 +207,10 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                   f"{e['normalized_score_mean']:.1f} ± {e['normalized_score_std']:.1f} over {over} "
                   f"({REFERENCE_SOURCES[dynamics]}), min-subdominance {e['min_subdominance_mean']:.3f} "
                   f"(dataset {results['dataset']['min_subdominance_mean']:.3f})")
+            demo = results["dataset"]["costs_mean"]
+            print("  costs (lower is better; demos' mean): " + ", ".join(
+                f"{k} {v:.3f} ({demo[k]:.3f})" if k in demo else f"{k} {v:.3f}" for k, v in e["costs_mean"].items())
+                + f"; dominate the mean demo (no metric worse, one better): {100 * e['better_than_mean_demo_share']:.0f} %")
     if main:
         write_atomic(os.path.join(out, "results.json"), json.dumps(results, indent=2))
         plot_learning_curve(metrics_path, os.path.join(out, "learning_curve.png"))
@@ -234,7 +245,9 @@ def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Pr
                           seeds=[s + 10_000 for _, s in models], demo_costs=per_model[0].costs, beta=cfg.beta,
                           alpha_max=cfg.alpha_max, learned=learned,
                           demo_features=[p.features for p in per_model] if learned else None, mesh=mesh,
-                          physics=physics, dynamics=dynamics, threads=cfg.physics_threads)
+                          physics=physics, dynamics=dynamics, threads=cfg.physics_threads,
+                          metrics=per_model[0].metrics,
+                          extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else ())
     return [dict(ev.summary(), method=m.name, seed=s, target_return=p.target_return)
             for ev, (m, s), p in zip(evs, models, per_model)]
 

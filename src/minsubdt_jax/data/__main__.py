@@ -3,6 +3,8 @@
     python -m minsubdt_jax.data --env hopper --dataset medium                        # D4RL's size, C MuJoCo on a CPU
     python -m minsubdt_jax.data --env hopper --dataset medium --physics mjx          # recorded in MJX instead
     python -m minsubdt_jax.data --env hopper --dataset hopper-medium-v2.hdf5 --check-dynamics   # which dynamics?
+    python -m minsubdt_jax.data --env walker --dataset medium --costs x_velocity,energy   # the data on chosen metrics
+    python -m minsubdt_jax.data --env walker --dataset medium --costs list                # the built-in metrics
 """
 
 from __future__ import annotations
@@ -13,9 +15,13 @@ import os
 import sys
 import time
 
+import numpy as np
+
 from ..caches import enable_compilation_cache
+from ..costs import check_costs, cost_metrics, describe_metrics, spearman, trajectory_costs
 from ..envs import ENVS, PHYSICS, resolve_physics
 from ..rundir import exit_code
+from ..subdominance import min_subdominance
 from .d4rl import replay_report
 from .dataset import DatasetError
 from .named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary_line
@@ -40,17 +46,25 @@ def main(argv=None) -> int:
                    help="replay the file's transitions from its recorded physics states under each dynamics and "
                         "print how well each reproduces them")
     p.add_argument("--check-transitions", type=int, default=2000, help="transitions replayed by --check-dynamics")
+    p.add_argument("--costs", default=None,
+                   help="comma-separated cost metrics (minsubdt_jax.costs; 'list' lists them): print the dataset's "
+                        "mean cost and min-subdominance on them")
     a = p.parse_args(argv)
+    if a.costs == "list":
+        print("\n".join(describe_metrics(a.env)))
+        return 0
+    if a.costs is not None and exit_code(lambda: check_costs(a.env, a.costs)):
+        return 2  # before anything is recorded
     enable_compilation_cache()
     if a.check_dynamics:
         return exit_code(lambda: check(a.env, a.dataset, a.check_transitions, a.horizon, a.seed, a.physics))
     if a.dataset not in NAMED_DATASETS:
         p.error(f"--dataset must be one of {list(NAMED_DATASETS)} to record (a file is for --check-dynamics)")
-    return exit_code(lambda: record(a.env, a.dataset, a.transitions, a.horizon, a.seed, a.force, a.physics))
+    return exit_code(lambda: record(a.env, a.dataset, a.transitions, a.horizon, a.seed, a.force, a.physics, a.costs))
 
 
 def record(env: str, dataset: str, transitions: int | None, horizon: int, seed: int, force: bool,
-           physics: str = "auto") -> None:
+           physics: str = "auto", costs: str | None = None) -> None:
     transitions = d4rl_transitions(env, dataset) if transitions is None else transitions
     if transitions < 1 or horizon < 1:
         raise DatasetError(f"transitions and horizon must be >= 1, got {transitions} and {horizon}")
@@ -63,6 +77,23 @@ def record(env: str, dataset: str, transitions: int | None, horizon: int, seed: 
     f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed, physics=physics)
     if cached:
         print(summary_line(env, dataset, f.data, time.time() - t0, horizon) + f" (cached: {f.path})")
+    if costs is not None:
+        print_costs(env, f.data, costs, horizon)
+
+
+def print_costs(env: str, data, costs: str, horizon: int) -> dict:
+    """The dataset's mean cost per metric of ``costs`` and its min-subdominance on them (eq. 2, leave-one-out)."""
+    metrics = cost_metrics(env, costs)
+    F = np.asarray(trajectory_costs(metrics, data.observations, data.lengths, max(horizon, data.max_len),
+                                    terminated=data.terminals, actions=data.actions))
+    ms = np.asarray(min_subdominance(F, F, 1.0, leave_one_out=True).value)
+    out = {"costs_mean": {m.name: float(v) for m, v in zip(metrics, F.mean(0))},
+           "min_subdominance_mean": float(ms.mean()), "spearman_neg_min_subdominance_vs_return": spearman(-ms, data.returns)}
+    for m, v in zip(metrics, F.mean(0)):
+        print(f"  {m.name}: mean cost {v:.3f} ({m.meaning})")
+    print(f"  min-subdominance {ms.mean():.3f} ± {ms.std():.3f} (beta 1); Spearman(-min-subdominance, true return) "
+          f"{out['spearman_neg_min_subdominance_vs_return']:.3f}")
+    return out
 
 
 def check(env: str, dataset: str, transitions: int, horizon: int, seed: int, physics: str) -> dict:
