@@ -50,7 +50,7 @@ def worker(preset: str, seeds: int, devices: int, steps: int, repeats: int, seed
     from minsubdt_jax.agents.base import init_seed_states, init_state, make_optimizer, make_train_chunk
     from minsubdt_jax.agents.dt.agent import make_dt_agent
 
-    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps)
+    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0)
     rng = np.random.default_rng(0)
     n, T, obs, act = 64, 1000, 17, 6
     ds = Trajectories(rng.normal(size=(n, T, obs)).astype(np.float32),

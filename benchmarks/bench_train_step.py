@@ -99,7 +99,7 @@ def timeit(fn, div=1):
 def bench(preset: str, steps: int, repeats: int, matmul, dropout: float | None = None, devices: int = 1) -> dict:
     """Time the preset's train chunk and its dots-only replay, interleaved with the matmul reference so that
     all three see the same machine state; ratios are medians of per-repeat ratios."""
-    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps)
+    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0)
     if dropout is not None:
         cfg = dataclasses.replace(cfg, dropout=dropout)
     ds = synthetic_dataset()

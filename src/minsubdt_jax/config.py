@@ -28,23 +28,23 @@ class Config:
     seeds: int = 1  # train seeds seed, seed+1, ..., seed+seeds-1 as one program (vmapped in one jitted step)
     dataset_seed: int = 0  # seed of a recorded named dataset (the data stays fixed across training seeds)
     steps: int = 3000  # gradient steps
-    preset: str = "cpu"
+    preset: str = "cpu"  # smoke (seconds, tests) | cpu (<= 15 min here) | paper (the DT paper's model, 100k steps)
     out: str | None = None  # run directory; default runs/{env}-{dataset}-{returns}-s{seed}
     # DT (DT paper: K=20, 128, 3 layers, 1 head, dropout 0.1)
-    context_len: int = 20
-    embed_dim: int = 128
-    n_layers: int = 3
-    n_heads: int = 1
-    dropout: float = 0.1
+    context_len: int = 20  # K, the context length in timesteps
+    embed_dim: int = 128  # the transformer's width
+    n_layers: int = 3  # transformer blocks
+    n_heads: int = 1  # attention heads
+    dropout: float = 0.1  # dropout rate in training
     # MLP policy (--method bc-mlp)
-    mlp_hidden: int = 256
-    mlp_layers: int = 2
+    mlp_hidden: int = 256  # hidden width of the MLP policy (--method bc-mlp)
+    mlp_layers: int = 2  # hidden layers of the MLP policy
     # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
-    learning_rate: float = 1e-4
-    weight_decay: float = 1e-4
-    warmup_steps: int = 10000
-    grad_clip: float = 0.25
-    batch_size: int = 64
+    learning_rate: float = 1e-4  # AdamW's peak learning rate
+    weight_decay: float = 1e-4  # AdamW's weight decay
+    warmup_steps: int = 10000  # linear warm-up of the learning rate over these steps
+    grad_clip: float = 0.25  # global-norm gradient clip
+    batch_size: int = 64  # sequences per gradient step (split over --devices)
     # after the warm-up: constant (DT paper) | cosine (decays to 0 at --steps, as IQL's actor; --steps is then fixed)
     lr_schedule: str = "constant"
     # > 0: keep an exponential moving average of the parameters (decay min(d, (1 + t) / (10 + t)) at step t) and
@@ -83,8 +83,8 @@ class Config:
     # several processes (jax.distributed); unset: from JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES /
     # JAX_PROCESS_ID, else one process. Every process runs the same command; process 0 writes the run directory
     coordinator_address: str | None = None  # host:port of process 0's coordinator
-    num_processes: int | None = None
-    process_id: int | None = None
+    num_processes: int | None = None  # processes in the job
+    process_id: int | None = None  # this process's index, 0 .. num_processes - 1
 
     def run_dir(self) -> str:
         if self.out:
@@ -108,8 +108,9 @@ PRESETS = {
                     warmup_steps=10, learning_rate=1e-3, chunk_steps=10, episode_length=100,
                     dataset_transitions=2000, eval_episodes=3, eval_episodes_periodic=3, cost_steps=20),
     # trains and evaluates one dataset in <= 15 min on a 2-core CPU
+    # (an evaluation every 500 steps: the learning curve shows a score curve)
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
-                  chunk_steps=500, eval_episodes=10, cost_steps=500),
+                  chunk_steps=500, eval_episodes=10, eval_every=500, cost_steps=500),
     # the DT paper's hyper-parameters (~14 h on a 2-core CPU)
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
@@ -173,12 +174,48 @@ def _base_type(tp):
     return tp
 
 
-def add_flags(parser: argparse.ArgumentParser, cls, choices: dict) -> None:
+def field_help(cls) -> dict[str, str]:
+    """Each field's help, from the comments of ``cls``'s source (as tyro reads them): the comment on the field's
+    line, else the comment lines directly above it."""
+    import inspect
+    import io
+    import re
+    import tokenize
+
+    src = inspect.getsource(cls)
+    comments = {tok.start[0]: tok.string.lstrip("# ").rstrip()
+                for tok in tokenize.generate_tokens(io.StringIO(src).readline) if tok.type == tokenize.COMMENT}
+    lines, out = src.splitlines(), {}
+    for i, line in enumerate(lines, 1):
+        m = re.match(r"\s+(\w+)\s*:[^=]*=", line)
+        if not m or line.lstrip().startswith("#"):
+            continue
+        if i in comments:
+            out[m.group(1)] = comments[i]
+            continue
+        block, j = [], i - 1
+        while j in comments and lines[j - 1].lstrip().startswith("#"):
+            block.insert(0, comments[j])
+            j -= 1
+        out[m.group(1)] = " ".join(block)
+    return out
+
+
+def add_flags(parser: argparse.ArgumentParser, cls, choices: dict, presets: dict | None = None,
+              default_preset: str | None = None) -> None:
     """One ``--field-name`` flag per field of dataclass ``cls``, typed from its annotation, default ``None``
-    (so that only the flags given override a preset)."""
-    hints = typing.get_type_hints(cls)
+    (so that only the flags given override a preset), its help from the field's comment (:func:`field_help`) and
+    its default: the ``default_preset``'s value, with the other ``presets``' where they differ."""
+    hints, helps = typing.get_type_hints(cls), field_help(cls)
     for f in dataclasses.fields(cls):
-        kw = {"default": None, "type": _base_type(hints[f.name]), "help": f"(default: {f.default})"}
+        default = f"default: {f.default}"
+        if presets and f.name != "preset":
+            values = {name: getattr(pc, f.name) for name, pc in presets.items()}
+            if len(set(map(repr, values.values()))) > 1:
+                default = f"default: {values[default_preset]}, the {default_preset} preset's; " + ", ".join(
+                    f"{name}: {v}" for name, v in values.items() if name != default_preset)
+        kw = {"default": None, "type": _base_type(hints[f.name]),
+              "help": f"{helps.get(f.name, '')} ({default})".replace("%", "%%").lstrip()}
         if f.name in choices:
             kw["choices"] = choices[f.name]
         parser.add_argument("--" + f.name.replace("_", "-"), **kw)
@@ -188,7 +225,9 @@ def parse_args(argv=None) -> tuple[Config, bool]:
     """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
                                 description="Train a MinSubDT (or DT) on one dataset and evaluate it in MJX.")
-    add_flags(p, Config, CHOICES)
+    add_flags(p, Config, CHOICES, PRESETS, Config.preset)
+    p.add_argument("--config", help="a config file (a run's config.json, or YAML) to start from; its fields "
+                   "override the preset's and the flags given override its")
     p.add_argument("--returns", choices=tuple(RETURNS_ALIASES),
                    help="older name of --method: " + ", ".join(f"{k} = {v}" for k, v in RETURNS_ALIASES.items()))
     p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
@@ -200,7 +239,43 @@ def parse_args(argv=None) -> tuple[Config, bool]:
             raise ValueError(f"--returns {alias} means --method {RETURNS_ALIASES[alias]}, not {args['method']}: "
                              f"give one of them")
         args["method"] = RETURNS_ALIASES[alias]
-    preset = args["preset"] or Config.preset
+    path = args.pop("config")
+    from_file = load_config_file(path) if path else {}
+    preset = args["preset"] or from_file.get("preset") or Config.preset
     given = {k: v for k, v in args.items() if v is not None}
-    cfg = dataclasses.replace(PRESETS[preset], **given)
+    cfg = dataclasses.replace(PRESETS[preset], **{**from_file, **given})
     return validate(cfg), resume
+
+
+def load_config_file(path: str) -> dict:
+    """The fields of a config file: JSON (a run's ``config.json``: every field) or YAML (``.yaml``/``.yml``: any
+    of them). Raises ValueError on a file that does not parse, an unknown field, or a value of the wrong type."""
+    try:
+        with open(path) as f:
+            text = f.read()
+        if path.endswith((".yaml", ".yml")):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except OSError as e:
+        raise ValueError(f"--config {path}: cannot read it ({e.strerror})") from None
+    except Exception as e:  # noqa: BLE001  (json.JSONDecodeError, yaml.YAMLError)
+        raise ValueError(f"--config {path}: does not parse ({type(e).__name__}: {str(e).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--config {path}: needs a mapping of field names to values, got {type(data).__name__}")
+    hints = typing.get_type_hints(Config)
+    unknown = sorted(set(data) - set(hints))
+    if unknown:
+        raise ValueError(f"--config {path}: unknown field(s) {unknown}; the fields are Config's "
+                         f"(python -m minsubdt_jax.train --help)")
+    for k, v in data.items():
+        tp = _base_type(hints[k])
+        optional = hints[k] is not tp
+        ok = (v is None and optional) or isinstance(v, tp) and not (tp is int and isinstance(v, bool)) or (
+            tp is float and isinstance(v, int) and not isinstance(v, bool))
+        if not ok:
+            raise ValueError(f"--config {path}: field {k!r} must be {tp.__name__}"
+                             f"{' or null' if optional else ''}, got {v!r}")
+    return {k: float(v) if _base_type(hints[k]) is float and v is not None else v for k, v in data.items()}

@@ -152,7 +152,8 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
     fig, axes = plt.subplots(1, 3 if evals else 1, figsize=(13 if evals else 5, 3.2), dpi=100, squeeze=False)
     ax = axes[0, 0]
     ax.plot([r["step"] for r in losses], [r["loss"] for r in losses], marker=".")
-    ax.set(xlabel="gradient step", ylabel="training loss", yscale="log", title="loss")
+    ax.set(xlabel="gradient step", ylabel="training loss", yscale="log")
+    ax.set_title("loss\n ", fontsize=10)
     for ax, key, title in [(a, k, t) for a, (k, t) in zip(axes[0, 1:], [
             ("eval_normalized_score", "normalised score"), ("eval_min_subdominance", "min-subdominance vs demos")])]:
         steps = [r["step"] for r in evals]
@@ -165,7 +166,9 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
             ax.plot(steps, w.mean(1), marker="o", label=name if len(set(names)) > 1 else None)
             ax.fill_between(steps, w.min(1), w.max(1), alpha=0.25)
             ax.plot([steps[i] for i in final], w.mean(1)[final], "k*", markersize=10)
-        ax.set(xlabel="gradient step", title=f"{title} (★ final; {v.shape[1] // len(set(names))} seed(s))")
+        n = v.shape[1] // len(set(names))
+        ax.set_xlabel("gradient step")
+        ax.set_title(f"{title}\n★ final evaluation; {n} seed{'s' if n > 1 else ''}", fontsize=10)
         if len(set(names)) > 1:
             ax.legend(loc="best", fontsize=8)
     for ax in axes[0]:

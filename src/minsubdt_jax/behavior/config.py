@@ -14,23 +14,23 @@ from ..envs import ENVS, env_spec
 class SACConfig:
     """Every field is a ``--flag`` of ``python -m minsubdt_jax.behavior.train``."""
 
-    env: str = "hopper"
+    env: str = "hopper"  # hopper | walker | halfcheetah
     steps: int = 300_000  # environment steps (transitions) in total
-    seed: int = 0
+    seed: int = 0  # seed of the networks, the exploration and the env resets
     out: str | None = None  # default runs/behavior/{env}
-    num_envs: int = 8
-    updates_per_transition: int = 1
-    batch_size: int = 256
+    num_envs: int = 8  # parallel MJX envs that collect transitions
+    updates_per_transition: int = 1  # gradient updates per collected transition
+    batch_size: int = 256  # transitions per gradient update
     hidden: int = 256  # width of the two hidden layers of actor and critics
-    learning_rate: float = 3e-4
-    gamma: float = 0.99
-    tau: float = 0.005
+    learning_rate: float = 3e-4  # Adam, actor, critics and temperature
+    gamma: float = 0.99  # discount
+    tau: float = 0.005  # Polyak rate of the target critics
     buffer_size: int = 1_000_000  # replay capacity (transitions); fixed for the life of a run
     min_replay: int = 10_000  # uniformly random actions until the buffer holds this many transitions
-    episode_length: int = 1000
+    episode_length: int = 1000  # time limit of an episode
     chunk_steps: int = 2000  # env steps per jitted chunk (a log line after each)
     eval_every: int = 10_000  # env steps between evaluation + snapshot + checkpoint
-    eval_episodes: int = 8
+    eval_episodes: int = 8  # episodes per evaluation
 
     def run_dir(self) -> str:
         return self.out or f"runs/behavior/{env_spec(self.env).name}"

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from ..parallel import shard_batch
-from .rules import TORSO, env_rules, forward_position, mj_model, observe, reset_state, step_outcome
+from .rules import TORSO, env_rules, forward_position, import_mjx, mj_model, observe, reset_state, step_outcome
 from .spec import Policy, Rollout, env_spec
 
 
@@ -31,7 +31,7 @@ class EnvState:
 def put_model(env: str, dynamics: str):
     """The MJX model of :func:`~minsubdt_jax.envs.rules.mj_model`, placed on this process's first device (in a
     multi-process job ``jax.devices()[0]`` belongs to process 0 alone)."""
-    from mujoco import mjx
+    mjx = import_mjx()
 
     with jax.ensure_compile_time_eval():  # concrete arrays even when first asked for inside a trace
         return mjx.put_model(mj_model(env, dynamics), device=jax.local_devices()[0])
@@ -49,7 +49,7 @@ class MjxEnv:
         return env_rules(self.env, self.dynamics)
 
     def reset(self, key) -> EnvState:
-        from mujoco import mjx
+        mjx = import_mjx()
 
         model = put_model(self.env, self.dynamics)
         qpos, qvel = reset_state(self.rules, model.qpos0, key)
@@ -58,7 +58,7 @@ class MjxEnv:
         return EnvState(data=data, obs=obs, reward=jnp.zeros(()), done=jnp.zeros(()))
 
     def step(self, state: EnvState, action) -> EnvState:
-        from mujoco import mjx
+        mjx = import_mjx()
 
         model, rules = put_model(self.env, self.dynamics), self.rules
         x_before = forward_position(rules, state.data.qpos, state.data.xpos[TORSO])

@@ -85,6 +85,25 @@ def env_rules(env: str, dynamics: str = "brax") -> Rules:
                  angle_range=(-0.2, 0.2) if hopper else (-1.0, 1.0), state_range=(-100.0, 100.0) if hopper else None)
 
 
+def import_mjx():
+    """``mujoco.mjx``, imported without the two lines its optional MuJoCo Warp backend prints when ``warp`` is not
+    installed ("Failed to import warp", "Failed to import mujoco_warp": we never use that backend); anything else
+    it prints passes through."""
+    import contextlib
+    import io
+    import sys
+
+    if "mujoco.mjx" not in sys.modules:
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            import mujoco.mjx  # noqa: F401
+        rest = [line for line in buf.getvalue().splitlines() if not line.startswith(("Failed to import warp",
+                                                                                       "Failed to import mujoco_warp"))]
+        if rest:
+            print("\n".join(rest))
+    return sys.modules["mujoco.mjx"]
+
+
 @functools.lru_cache(maxsize=None)
 def mj_model(env: str, dynamics: str = "brax"):
     """The ``mujoco.MjModel`` of ``env`` in ``dynamics``: brax's XML as brax loads it (``mjcf.load_mjmodel``, the
@@ -93,6 +112,7 @@ def mj_model(env: str, dynamics: str = "brax"):
 
     name = env_spec(env).name
     if check_dynamics_name(dynamics) == "brax":
+        import_mjx()  # brax imports it
         from brax.io import mjcf
 
         spec = importlib.util.find_spec("brax")
