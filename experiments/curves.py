@@ -58,14 +58,40 @@ def run(a) -> dict:
     return curve
 
 
+def snapshot(a) -> dict:
+    """The curve so far of a run that has not finished (cut, or still going): from its run directory's
+    ``config.json``, ``dataset.json`` and ``metrics.jsonl``; marked ``partial`` with the command that resumes it."""
+    from minsubdt_jax.data import resolve_dataset
+    from minsubdt_jax.references import normalized_score
+
+    out = os.path.join(a.runs_root, name_of(a))
+    with open(os.path.join(out, "config.json")) as f:
+        cfg = json.load(f)
+    with open(os.path.join(out, "dataset.json")) as f:
+        ds = json.load(f)
+    with open(os.path.join(out, "metrics.jsonl")) as f:
+        first = next(r for r in map(json.loads, filter(str.strip, f)) if "eval_normalized_score" in r)
+    data = resolve_dataset(cfg["env"], cfg["dataset"], verbose=False, physics=cfg["physics"])
+    if data.sha256 != ds["sha256"]:
+        raise SystemExit(f"{data.path} is not the run's data (sha256 {ds['sha256'][:12]})")
+    ds["normalized_score_mean"] = float(normalized_score(cfg["env"], data.data.returns, ds["dynamics"]).mean())
+    res = {"config": cfg, "dataset": ds, "physics": {"physics": cfg["physics"], "dynamics": ds["dynamics"]},
+           "models": [{"method": m, "seed": s} for m, s in zip(first["eval_method"], first["eval_seed"])]}
+    curve = collect(out, res)
+    curve.update(partial=True, command=" ".join(["python experiments/curves.py run", *sys.argv[2:]]))
+    with open(os.path.join(RESULTS, name_of(a) + ".json"), "w") as f:
+        json.dump(curve, f, indent=1)
+    plot(curve, os.path.join(RESULTS, name_of(a) + ".png"))
+    return curve
+
+
 def collect(run_dir: str, res: dict) -> dict:
     """The evaluations of ``metrics.jsonl``: ``{"steps": [...], "models": [{"method", "seed", "mean": [...],
     "std": [...]}]}`` plus what the run was (config, dataset, physics)."""
     with open(os.path.join(run_dir, "metrics.jsonl")) as f:
         evals = [r for r in map(json.loads, filter(str.strip, f)) if "eval_normalized_score" in r]
     models = [{"method": m["method"], "seed": m["seed"], "mean": [], "std": []} for m in res["models"]]
-    raw = [r for r in evals if "eval_raw_normalized_score" in r]
-    if raw and len(raw) == len(evals) - 1:  # --ema: the periodic evaluations also scored the raw parameters
+    if any("eval_raw_normalized_score" in r for r in evals):  # --ema: periodic evaluations scored the raw ones too
         models += [{"method": m["method"] + " (raw params)", "seed": m["seed"], "mean": [], "std": []}
                    for m in res["models"]]
     n = len(res["models"])
@@ -80,6 +106,9 @@ def collect(run_dir: str, res: dict) -> dict:
             m["std"].append(r[prefix + "normalized_score_std"][i % n])
     cfg = res["config"]
     command = " ".join(["python experiments/curves.py run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else None
+    if command is not None and os.path.exists(os.path.join(RESULTS, os.path.basename(run_dir) + ".json")):
+        with open(os.path.join(RESULTS, os.path.basename(run_dir) + ".json")) as f:  # resumed: the first command
+            command = json.load(f).get("command") or command
     return {"command": command,
             "config": cfg, "dataset": {k: res["dataset"][k] for k in ("path", "sha256", "episodes", "transitions",
                                                                         "normalized_score_mean")},
@@ -146,7 +175,12 @@ def report() -> str:
         with open(os.path.join(RESULTS, fn)) as f:
             curve = json.load(f)
         c, ds = curve["config"], curve["dataset"]
-        lines += [f"## {fn[:-5]}", "", f"![curve](curves/{fn[:-5]}.png)", "",
+        lines += [f"## {fn[:-5]}", "", f"![curve](curves/{fn[:-5]}.png)", ""]
+        if curve.get("partial"):
+            lines += [f"**Partial: the run stopped at step {curve['steps'][-1]} of {c['steps']}**; the command below "
+                      "resumes it from its last checkpoint (in `runs/curves/`, on the machine that ran it) or, "
+                      "elsewhere, runs it again.", ""]
+        lines += [
                   f"`{curve['command']}`; data `{os.path.basename(ds['path'])}` (sha256 {ds['sha256'][:12]}, "
                   f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised "
                   f"{ds['normalized_score_mean']:.1f}); DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr "
@@ -195,7 +229,8 @@ def ties(cells=(("walker", "medium"), ("hopper", "medium-replay"), ("halfcheetah
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("action", choices=["run", "report", "ties"])
+    p.add_argument("action", choices=["run", "snapshot", "report", "ties"],
+                   help="snapshot: commit the curve so far of an unfinished run (same flags as its run)")
     p.add_argument("--env", default="walker")
     p.add_argument("--dataset", default="medium")
     p.add_argument("--methods", default="minsubdt,dt")
@@ -218,6 +253,8 @@ def main(argv=None) -> int:
         return 0
     if a.action == "run":
         run(a)
+    if a.action == "snapshot":
+        snapshot(a)
     print(report())
     return 0
 

@@ -11,7 +11,8 @@ import orbax.checkpoint as ocp
 import pytest
 
 SMOKE = ["--preset", "smoke", "--env", "hopper", "--episode-length", "60"]
-CHOSEN = ["--costs", "x_velocity,energy,fall", "--ema-decay", "0.9"]  # the full run's chosen metrics and averaging
+# the full run's chosen metrics, parameter average and TensorBoard logger
+CHOSEN = ["--costs", "x_velocity,energy,fall", "--ema-decay", "0.9", "--logger", "tensorboard"]
 
 
 def _run(args, env, check=True):
@@ -60,6 +61,10 @@ def test_smoke_train_and_evaluate(full_run):
     assert [m["name"] for m in res["dataset"]["cost_metrics"]] == ["x_velocity", "energy", "fall"]
     assert "energy" in p.stdout.split("costs (lower is better")[1] and len(ev["costs"][0]) == 3
     assert "eval_raw_normalized_score" in evals[0] and "eval_raw_normalized_score" not in evals[1]
+    tb = _tensorboard_scalars(out / "tensorboard")  # the same records, read back from the event files
+    assert tb["eval_normalized_score/minsubdt-s0"] == [(10, pytest.approx(evals[0]["eval_normalized_score"][0])),
+                                                       (20, pytest.approx(ev["normalized_score_mean"]))]
+    assert [s for s, _ in tb["loss"]] == [10, 20]
     assert 0 <= ev["min_subdominance_mean"] <= 3 and np.isfinite(ev["normalized_score_mean"])  # K beta, K = 3
     assert res["dataset"]["episodes"] == 32 and res["references"]["dynamics"] == "brax"
     assert res["method"] == {"name": "minsubdt", "label": "MinSubDT (engg. costs)", "agent": "dt"}
@@ -89,6 +94,25 @@ def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_pa
     assert metrics == [10, 20]
 
 
+def _tensorboard_scalars(folder) -> dict:
+    """``{tag: [(step, value)]}`` from tensorboardX event files, read as TFRecords (length, crc, data, crc)."""
+    import struct
+
+    from tensorboardX.proto.event_pb2 import Event
+
+    out = {}
+    for path in sorted(folder.iterdir()):
+        buf = path.read_bytes()
+        i = 0
+        while i < len(buf):
+            (n,) = struct.unpack("<Q", buf[i:i + 8])
+            ev = Event.FromString(buf[i + 12:i + 12 + n])
+            i += 12 + n + 4
+            for v in ev.summary.value:
+                out.setdefault(v.tag, []).append((ev.step, v.simple_value))
+    return out
+
+
 def _leaves(tree):
     import jax
 
@@ -102,6 +126,8 @@ def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, capsys):
     assert not out.exists()
     code, err = _main([*SMOKE, "--steps", "0", "--out", str(out)], capsys)
     assert code == 2 and "--steps must be > 0" in err and not out.exists()
+    code, err = _main([*SMOKE, "--logger", "tensorbord", "--out", str(out)], capsys)
+    assert code == 2 and "--logger must be one or several" in err and not out.exists()
     code, err = _main([*SMOKE, "--costs", "x_velocity,speed", "--out", str(out)], capsys)
     assert code == 2 and err.strip().count("\n") == 0 and "unknown cost metric 'speed'" in err and not out.exists()
     code, err = _main([*SMOKE, "--returns", "true", "--method", "bc", "--out", str(out)], capsys)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 from .costs import check_costs
 from .envs import DYNAMICS, PHYSICS
+from .loggers import logger_names
 from .methods import METHODS, RETURNS_ALIASES
 from .parallel import distributed_settings
 
@@ -79,6 +80,9 @@ class Config:
     eval_every: int = 0  # evaluate every this many steps during training (0: only at the end); multiple of chunk_steps
     eval_episodes_periodic: int = 10  # episodes per seed of each periodic evaluation
     chunk_steps: int = 500  # steps per jitted lax.scan chunk; a checkpoint and a log line after each
+    # besides metrics.jsonl: tensorboard (tensorboardX, <out>/tensorboard) | wandb (the [wandb] extra; WANDB_MODE=offline
+    # keeps it local), comma-separated
+    logger: str | None = None
     devices: int = 0  # data parallel over this many local devices (0: all); --batch-size must divide evenly
     # several processes (jax.distributed); unset: from JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES /
     # JAX_PROCESS_ID, else one process. Every process runs the same command; process 0 writes the run directory
@@ -134,6 +138,7 @@ def validate(cfg: Config) -> Config:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
     if cfg.costs is not None:
         check_costs(cfg.env, cfg.costs)  # one error on an unknown name or a metric the env cannot compute
+    logger_names(cfg.logger)
     if cfg.eval_costs is not None:
         check_costs(cfg.env, cfg.eval_costs, "--eval-costs")
     if cfg.dataset_transitions is not None and cfg.dataset_transitions < 1:

@@ -44,6 +44,7 @@ from .costs import cost_metrics
 from .data.d4rl import file_dynamics
 from .envs import physics_record, resolve_physics
 from .evaluation import across_seeds, evaluate_policy
+from .loggers import Loggers, logger_names
 from .methods import get_method
 from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh, replicate)
 from .pipeline import Prepared, load, prepare
@@ -53,7 +54,7 @@ from .rundir import (DATASET_FILE, check_run_dir, check_same_data, exit_code, pl
 
 # Fields that may differ between a run and its resumption.
 RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_periodic", "out", "preset", "devices",
-                     "coordinator_address", "num_processes", "process_id", "physics", "physics_threads")
+                     "logger", "coordinator_address", "num_processes", "process_id", "physics", "physics_threads")
 
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True,
@@ -132,10 +133,13 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     if main:
         truncate_metrics(metrics_path, start)
 
+    loggers = Loggers(logger_names(cfg.logger), out, dataclasses.asdict(cfg)) if main else None
+
     def log(record):
         if main:
             with open(metrics_path, "a") as f:
                 f.write(json.dumps(record) + "\n")
+            loggers.log(record)
         if progress_fn is not None:
             progress_fn(record["step"], record)
 
@@ -212,6 +216,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                 f"{k} {v:.3f} ({demo[k]:.3f})" if k in demo else f"{k} {v:.3f}" for k, v in e["costs_mean"].items())
                 + f"; dominate the mean demo (no metric worse, one better): {100 * e['better_than_mean_demo_share']:.0f} %")
     if main:
+        loggers.close()
         write_atomic(os.path.join(out, "results.json"), json.dumps(results, indent=2))
         plot_learning_curve(metrics_path, os.path.join(out, "learning_curve.png"))
     if verbose:
