@@ -135,6 +135,30 @@ def noise(curve: dict) -> list[dict]:
     return rows
 
 
+def stability(curve: dict) -> list[dict]:
+    """Per method, over the evaluations of the curve's last third (periodic ones): the std of one seed's score from
+    checkpoint to checkpoint (its mean over seeds), against the episode noise of one evaluation, and the mean over
+    the last-third evaluations per seed (mean ± std over seeds): an average over checkpoints."""
+    steps = np.array(curve["steps"], float)
+    last = steps >= steps.max() * 2 / 3
+    rows = []
+    for method in dict.fromkeys(m["method"] for m in curve["models"]):
+        ms = [m for m in curve["models"] if m["method"] == method]
+        M = np.array([m["mean"] for m in ms], float)[:, last]
+        keep = np.isfinite(M).all(0)
+        M = M[:, keep]
+        if M.shape[1] < 2:
+            continue
+        se = np.array([m["std"] for m in ms], float)[:, last][:, keep] / np.sqrt(np.array(curve["episodes"])[last][keep])
+        avg = M.mean(1)
+        rows.append({"method": method, "evaluations": int(M.shape[1]), "from_step": int(steps[last][keep][0]),
+                     "checkpoint_std": float(M.std(1, ddof=1).mean()), "episode_se": float(np.sqrt((se ** 2).mean())),
+                     "last_third_mean": float(avg.mean()),
+                     "last_third_between_seeds": float(avg.std(ddof=1)) if len(avg) > 1 else float("nan"),
+                     "first_to_last": float(M[:, -1].mean() - M[:, 0].mean())})
+    return rows
+
+
 def plot(curve: dict, png: str) -> None:
     import matplotlib
 
@@ -193,6 +217,17 @@ def report() -> str:
         lines += [f"| {r['method']} | {r['step']} | {r['seeds']} x {r['episodes']} | {r['mean']:.1f} | "
                   f"{r['between_seeds_std']:.1f} | {r['episode_se']:.1f} | {r['seeds_for_3_points']} |"
                   for r in noise(curve)]
+        st = stability(curve)
+        if st:
+            lines += ["", "Over the last third of the curve: how much one seed's score moves from checkpoint to checkpoint "
+                      "(std over its evaluations, mean over seeds) against one evaluation's episode noise, and the "
+                      "score averaged over those checkpoints per seed:", "",
+                      "| method | evaluations (from step) | checkpoint-to-checkpoint std | episode SE | "
+                      "last-third average, mean ± std over seeds | last minus first of the third |",
+                      "|---|---|---|---|---|---|"]
+            lines += [f"| {r['method']} | {r['evaluations']} (from {r['from_step']}) | {r['checkpoint_std']:.1f} | "
+                      f"{r['episode_se']:.1f} | {r['last_third_mean']:.1f} ± {r['last_third_between_seeds']:.1f} | "
+                      f"{r['first_to_last']:+.1f} |" for r in st]
         lines.append("")
     text = "\n".join(lines) + "\n"
     with open(os.path.join(HERE, "results", "curves.md"), "w") as f:

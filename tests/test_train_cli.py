@@ -299,3 +299,26 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     helps = field_help(Config)
     assert all(helps.get(f.name) for f in dataclasses.fields(Config)), [f.name for f in dataclasses.fields(Config)
                                                                         if not helps.get(f.name)]
+
+
+def test_plot_compares_runs_with_mean_and_std_over_seeds(full_run, tmp_path):
+    """`python -m minsubdt_jax.plot` on the full run and a hand-written two-method, two-seed log: one PNG; the
+    curves it draws are the seeds' mean and std (hand values); a folder without a log is one error, no PNG."""
+    import matplotlib.image
+
+    from minsubdt_jax.plot import curves, main as plot_main
+
+    other = tmp_path / "two"
+    other.mkdir()
+    recs = [{"step": 5, "loss": 1.5, "loss_per_seed": [1.0, 2.0, 1.0, 2.0]},
+            {"step": 5, "eval_normalized_score": [10.0, 20.0, 30.0, 50.0], "eval_min_subdominance": [1, 1, 0, 0],
+             "eval_method": ["dt", "dt", "bc", "bc"], "eval_seed": [0, 1, 0, 1], "final": True}]
+    (other / "metrics.jsonl").write_text("\n".join(map(json.dumps, recs)) + "\n")
+    c = curves(str(other))
+    assert c["loss"][1].tolist() == [1.5] and c["loss"][2].tolist() == [0.5]
+    assert c["score"]["dt"][1].tolist() == [15.0] and c["score"]["bc"][2].tolist() == [10.0]
+    png = tmp_path / "runs.png"
+    assert plot_main([str(full_run[0]), str(other), "--out", str(png)]) == 0
+    assert matplotlib.image.imread(png).shape[1] == 1500
+    assert plot_main([str(tmp_path / "none"), "--out", str(tmp_path / "x.png")]) == 2
+    assert not (tmp_path / "x.png").exists()

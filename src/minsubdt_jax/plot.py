@@ -1,0 +1,97 @@
+"""Several runs in one figure: ``python -m minsubdt_jax.plot RUN_DIR [RUN_DIR ...] --out runs.png``.
+
+Reads each run directory's ``metrics.jsonl`` and draws, against the gradient step, the training loss and the
+normalised score of every (run, method): the mean over its seeds with a ± std band (the final evaluation as a
+star), and min-subdominance against the demos. Runs of several methods or seeds (``--method a,b --seeds S``)
+give one line per method. As ``d3rlpy plot`` does for its logs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+from .rundir import exit_code, read_metrics
+
+
+def curves(run_dir: str) -> dict:
+    """``{"loss": (steps, mean, std), "score": {method: (steps, mean, std, final)}, "min_subdominance": ...}`` of
+    one run directory; raises ValueError where it holds no ``metrics.jsonl``."""
+    path = os.path.join(run_dir, "metrics.jsonl")
+    if not os.path.exists(path):
+        raise ValueError(f"{run_dir}: no metrics.jsonl (not a run directory of python -m minsubdt_jax.train)")
+    rows = read_metrics(path)
+    losses = [r for r in rows if "loss" in r]
+    per = np.array([r.get("loss_per_seed", [r["loss"]]) for r in losses], float)
+    out = {"loss": (np.array([r["step"] for r in losses]), per.mean(1), per.std(1)), "score": {},
+           "min_subdominance": {}}
+    evals = [r for r in rows if "eval_normalized_score" in r]
+    for key, name in (("eval_normalized_score", "score"), ("eval_min_subdominance", "min_subdominance")):
+        for method in dict.fromkeys(m for r in evals for m in r.get("eval_method", ["run"])):
+            pts = [(r["step"], [v for m, v in zip(r.get("eval_method", ["run"] * len(r[key])), r[key]) if m == method],
+                    r.get("final", False)) for r in evals]
+            out[name][method] = (np.array([p[0] for p in pts]), np.array([np.mean(p[1]) for p in pts]),
+                                 np.array([np.std(p[1]) for p in pts]), np.array([p[2] for p in pts]))
+    return out
+
+
+def plot_runs(run_dirs: list[str], png: str, labels: list[str] | None = None) -> None:
+    """Writes ``png``: loss, normalised score and min-subdominance of ``run_dirs`` (see the module docstring)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = labels or [os.path.basename(os.path.normpath(d)) for d in run_dirs]
+    data = [curves(d) for d in run_dirs]  # every directory checked before anything is drawn
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4), dpi=100)
+    k = 0
+    for label, c in zip(labels, data):
+        steps, mean, std = c["loss"]
+        axes[0].plot(steps, mean, color=f"C{k % 10}", label=label)
+        axes[0].fill_between(steps, mean - std, mean + std, color=f"C{k % 10}", alpha=0.2)
+        for method in c["score"]:
+            color = f"C{k % 10}"
+            name = label if len(c["score"]) == 1 else f"{label}: {method}"
+            for ax, key in ((axes[1], "score"), (axes[2], "min_subdominance")):
+                s, m, sd, final = c[key][method]
+                ax.plot(s, m, marker="o", ms=3, color=color, label=name)
+                ax.fill_between(s, m - sd, m + sd, color=color, alpha=0.2)
+                ax.plot(s[final], m[final], "*", color=color, ms=11)
+            k += 1
+        k += 0 if c["score"] else 1
+    axes[0].set(xlabel="gradient step", ylabel="training loss", yscale="log")
+    axes[1].set(xlabel="gradient step", ylabel="normalised score")
+    axes[2].set(xlabel="gradient step", ylabel="min-subdominance vs demos")
+    for ax, title in zip(axes, ("loss (mean ± std over seeds)", "normalised score (★ final)", "min-subdominance")):
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(png)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.plot", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("runs", nargs="+", help="run directories (python -m minsubdt_jax.train --out)")
+    p.add_argument("--out", default="runs.png", help="the PNG to write (default runs.png)")
+    p.add_argument("--labels", default=None, help="comma-separated labels, one per run (default: the folder names)")
+    a = p.parse_args(argv)
+
+    def run():
+        labels = a.labels.split(",") if a.labels else None
+        if labels is not None and len(labels) != len(a.runs):
+            raise ValueError(f"--labels has {len(labels)} labels for {len(a.runs)} runs")
+        plot_runs(a.runs, a.out, labels)
+        print(f"wrote {a.out}")
+
+    return exit_code(run)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
