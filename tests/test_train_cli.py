@@ -268,6 +268,10 @@ def test_learned_costs_and_behaviour_cloning(tmp_path, small_dataset_path):
     rep = res["dataset"]["learned_costs"]
     assert res["dataset"]["min_subdominance_features"] == "learned" and len(rep["alpha"]) == 3
     assert 0 <= rep["heldout_pair_accuracy"] <= 1 and np.isfinite(rep["final_loss"])
+    agree = rep["spearman_with_metrics"]  # each learned feature's rank agreement with each chosen metric
+    assert list(agree) == ["learned_0", "learned_1", "learned_2"] and all(
+        list(v) == ["x_velocity", "fall"] and all(-1 <= x <= 1 for x in v.values() if np.isfinite(x))
+        for v in agree.values())
     ev = res["eval"]
     assert np.isfinite(ev["learned_min_subdominance_mean"]) and 0 <= ev["better_than_mean_demo_share"] <= 1
     assert len(ev["costs"]) == 3 and len(res["dataset"]["costs_sample"]) == 32

@@ -64,7 +64,10 @@ class Prepared:
             "costs_sample": self.costs[np.sort(np.random.default_rng(0).permutation(len(self.costs))[:300])].tolist(),
         }
         if self.learned:
-            out["learned_costs"] = self.learned.report
+            # what the learned features learned: each one's rank agreement with each chosen metric, over the demos
+            agree = {f"learned_{i}": {m.name: spearman(self.features[:, i], self.costs[:, j])
+                                      for j, m in enumerate(self.metrics)} for i in range(self.features.shape[1])}
+            out["learned_costs"] = {**self.learned.report, "spearman_with_metrics": agree}
         return out
 
 
