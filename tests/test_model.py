@@ -106,3 +106,32 @@ def test_last_only_is_the_full_forward_at_the_last_state():
     last = model.apply(params, **x, last_only=True)
     assert last.shape == (B, ACT)
     np.testing.assert_allclose(last, full, rtol=1e-5, atol=1e-6)
+
+
+def test_bf16_matmuls_follow_the_f32_loss_curve():
+    """--precision bf16: 200 smoke-preset DT steps (one chunk, same seed and data) with bfloat16 matmuls and float32
+    parameters, optimiser and loss stay within 2 % of the float32 loss curve, window by window (50 steps each;
+    measured 0.07-0.2 %), while the parameters stay float32; the loss falls by more than 5x in both."""
+    import dataclasses
+
+    from minsubdt_jax.agents import make_agent
+    from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk
+    from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.data import Trajectories, sampler_data
+
+    rng = np.random.default_rng(0)
+    n, T, obs, act = 16, 60, 11, 3
+    states = rng.normal(size=(n, T, obs)).astype(np.float32)
+    ds = Trajectories(states, np.tanh(states @ rng.normal(size=(obs, act))).astype(np.float32),
+                      np.zeros((n, T), np.float32), np.full(n, T, np.int32), np.zeros(n, bool))
+    data = sampler_data(ds, rng.normal(size=(n, T)), np.zeros(obs, np.float32), np.ones(obs, np.float32))
+    curves = {}
+    for p in ("f32", "bf16"):
+        cfg = dataclasses.replace(PRESETS["smoke"], precision=p)
+        agent, tx = make_agent("dt", cfg, obs, act, T), make_optimizer(cfg)
+        state, losses = make_train_chunk(agent, tx, cfg.batch_size, 200)(init_state(agent, tx, jax.random.PRNGKey(0)),
+                                                                          data)
+        curves[p] = np.asarray(losses).reshape(4, 50).mean(1)
+        assert {x.dtype for x in jax.tree.leaves(state.params)} == {np.dtype(np.float32)}
+    np.testing.assert_allclose(curves["bf16"], curves["f32"], rtol=0.02)
+    assert curves["f32"][-1] < curves["f32"][0] / 5

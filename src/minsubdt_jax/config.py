@@ -46,6 +46,9 @@ class Config:
     warmup_steps: int = 10000  # linear warm-up of the learning rate over these steps
     grad_clip: float = 0.25  # global-norm gradient clip
     batch_size: int = 64  # sequences per gradient step (split over --devices)
+    # matmul precision of the DT: f32 | tf32 (TF32 matmuls on GPUs that have them; the same as f32 on a CPU) |
+    # bf16 (bfloat16 matmuls; parameters, optimiser, LayerNorms and the loss stay float32)
+    precision: str = "f32"
     # after the warm-up: constant (DT paper) | cosine (decays to 0 at --steps, as IQL's actor; --steps is then fixed)
     lr_schedule: str = "constant"
     # > 0: keep an exponential moving average of the parameters (decay min(d, (1 + t) / (10 + t)) at step t) and
@@ -121,7 +124,7 @@ PRESETS = {
 
 LR_SCHEDULES = ("constant", "cosine")
 CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS), "physics": PHYSICS,
-           "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES}
+           "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES, "precision": ("f32", "tf32", "bf16")}
 
 
 def validate(cfg: Config) -> Config:
@@ -161,6 +164,8 @@ def validate(cfg: Config) -> Config:
         raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
     if cfg.embed_dim % cfg.n_heads:
         raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
+    if cfg.precision != "f32" and agents != {"dt"}:
+        raise ValueError(f"--precision {cfg.precision} is for the DT agent; --method {cfg.method} trains an MLP")
     if not 0 <= cfg.ema_decay < 1:
         raise ValueError(f"--ema-decay must be in [0, 1) (0: off), got {cfg.ema_decay}")
     if not 0 <= cfg.cost_label_noise < 0.5:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 
 from .losses import action_loss
@@ -24,11 +25,13 @@ class DTAgent:
     n_heads: int
     dropout: float
     max_timestep: int
+    precision: str = "f32"  # f32 | tf32 (TF32 matmuls where the device has them) | bf16 (bfloat16 matmuls)
 
     @property
     def model(self) -> DecisionTransformer:
         return DecisionTransformer(act_dim=self.act_dim, embed_dim=self.embed_dim, n_layers=self.n_layers,
-                                   n_heads=self.n_heads, dropout=self.dropout, max_timestep=self.max_timestep)
+                                   n_heads=self.n_heads, dropout=self.dropout, max_timestep=self.max_timestep,
+                                   dtype=jnp.bfloat16 if self.precision == "bf16" else None)
 
     def init_params(self, key):
         K = self.context_len
@@ -36,6 +39,9 @@ class DTAgent:
                                jnp.zeros((1, K)), jnp.zeros((1, K), jnp.int32), jnp.ones((1, K), bool))
 
     def loss(self, params, batch, rng):
+        if self.precision == "tf32":  # read when the step is traced
+            with jax.default_matmul_precision("tensorfloat32"):
+                return action_loss(self.model, params, batch, rng)
         return action_loss(self.model, params, batch, rng)
 
     @property
@@ -48,4 +54,4 @@ class DTAgent:
 
 def make_dt_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> DTAgent:
     return DTAgent(obs_dim, act_dim, cfg.context_len, cfg.embed_dim, cfg.n_layers, cfg.n_heads, cfg.dropout,
-                   max_timestep)
+                   max_timestep, cfg.precision)

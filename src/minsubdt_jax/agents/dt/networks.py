@@ -11,6 +11,8 @@ is expensive on a CPU (``benchmarks/README.md``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
@@ -69,20 +71,23 @@ class Block(nn.Module):
     n_heads: int
     dropout: float
     mlp_ratio: int = 4
+    dtype: Any = None  # computation dtype of the matmuls (bfloat16 for --precision bf16); parameters stay float32
 
     @nn.compact
     def __call__(self, x, attn_mask, deterministic: bool, last_only: bool = False):
         """``x [B, T, d]`` -> ``[B, T, d]``; with ``last_only`` only the last token's output ``[B, 1, d]``: its
-        query attends to every token's keys and values as before, and nothing else is computed for the others."""
-        h = nn.LayerNorm()(x)
+        query attends to every token's keys and values as before, and nothing else is computed for the others.
+        The residual stream and the LayerNorms stay float32 when ``dtype`` is set."""
+        ln = (lambda: nn.LayerNorm()) if self.dtype is None else (lambda: nn.LayerNorm(dtype=jnp.float32))  # noqa
+        h = ln()(x)
         q = h[:, -1:] if last_only else h
         mask = attn_mask[..., -1:, :] if last_only else attn_mask
-        h = nn.MultiHeadDotProductAttention(num_heads=self.n_heads, dropout_rate=self.dropout,
+        h = nn.MultiHeadDotProductAttention(num_heads=self.n_heads, dropout_rate=self.dropout, dtype=self.dtype,
                                             deterministic=deterministic, attention_fn=_attention)(q, h, mask=mask)
         x = (x[:, -1:] if last_only else x) + HashDropout(self.dropout)(h, deterministic=deterministic)
-        h = nn.LayerNorm()(x)
-        h = nn.Dense(self.mlp_ratio * self.embed_dim)(h)
-        h = nn.Dense(self.embed_dim)(nn.relu(h))
+        h = ln()(x)
+        h = nn.Dense(self.mlp_ratio * self.embed_dim, dtype=self.dtype)(h)
+        h = nn.Dense(self.embed_dim, dtype=self.dtype)(nn.relu(h))
         return x + HashDropout(self.dropout)(h, deterministic=deterministic)
 
 
@@ -105,16 +110,18 @@ class DecisionTransformer(nn.Module):
     n_heads: int = 1
     dropout: float = 0.1
     max_timestep: int = 1000
+    dtype: Any = None  # matmul dtype (None: float32); parameters, LayerNorms and outputs stay float32
 
     @nn.compact
     def __call__(self, states, actions, returns_to_go, timesteps, mask, deterministic: bool = True,
                  last_only: bool = False):
         B, K = mask.shape
         d = self.embed_dim
+        dt, f32 = self.dtype, (lambda y: y) if self.dtype is None else (lambda y: y.astype(jnp.float32))  # noqa
         t_emb = nn.Embed(self.max_timestep, d, name="embed_timestep")(jnp.clip(timesteps, 0, self.max_timestep - 1))
-        r = nn.Dense(d, name="embed_return")(returns_to_go[..., None]) + t_emb
-        s = nn.Dense(d, name="embed_state")(states) + t_emb
-        a = nn.Dense(d, name="embed_action")(actions) + t_emb
+        r = f32(nn.Dense(d, dtype=dt, name="embed_return")(returns_to_go[..., None])) + t_emb
+        s = f32(nn.Dense(d, dtype=dt, name="embed_state")(states)) + t_emb
+        a = f32(nn.Dense(d, dtype=dt, name="embed_action")(actions)) + t_emb
         x = jnp.stack([r, s, a], axis=2).reshape(B, 3 * K, d)
         x = nn.LayerNorm(name="embed_ln")(x)
         x = HashDropout(self.dropout)(x, deterministic=deterministic)
@@ -125,9 +132,9 @@ class DecisionTransformer(nn.Module):
             x, attn_mask = x[:, :-1], attn_mask[..., :-1, :-1]
         for i in range(self.n_layers):
             last = last_only and i == self.n_layers - 1
-            x = Block(d, self.n_heads, self.dropout, name=f"block_{i}")(x, attn_mask, deterministic, last)
+            x = Block(d, self.n_heads, self.dropout, dtype=dt, name=f"block_{i}")(x, attn_mask, deterministic, last)
         x = nn.LayerNorm(name="ln_f")(x)
         if last_only:
-            return jnp.tanh(nn.Dense(self.act_dim, name="predict_action")(x[:, -1]))
+            return jnp.tanh(f32(nn.Dense(self.act_dim, dtype=dt, name="predict_action")(x[:, -1])))
         h_state = x.reshape(B, K, 3, d)[:, :, 1]
-        return jnp.tanh(nn.Dense(self.act_dim, name="predict_action")(h_state))
+        return jnp.tanh(f32(nn.Dense(self.act_dim, dtype=dt, name="predict_action")(h_state)))
