@@ -96,7 +96,7 @@ def import_mjx():
     if "mujoco.mjx" not in sys.modules:
         buf = io.StringIO()
         with contextlib.redirect_stdout(buf):
-            import mujoco.mjx  # noqa: F401
+            importlib.import_module("mujoco.mjx")
         rest = [line for line in buf.getvalue().splitlines() if not line.startswith(("Failed to import warp",
                                                                                        "Failed to import mujoco_warp"))]
         if rest:
