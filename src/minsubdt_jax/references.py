@@ -24,6 +24,11 @@ REFERENCE_SOURCES = {
 }
 
 
+# the one convention of every normalised score here (D4RL's paper tables use it too; its get_normalized_score, and
+# Minari's, return the 0-1 fraction)
+SCALE = "0-100: 100 (R - R_random) / (R_expert - R_random); D4RL's and Minari's get_normalized_score give this / 100"
+
+
 def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:
     """``(R_random, R_expert)`` for ``env`` in ``dynamics``."""
     name = env_spec(env).name
@@ -44,4 +49,5 @@ def normalized_score(env: str, returns, dynamics: str = "brax"):
 def references_record(env: str, dynamics: str = "brax") -> dict:
     """What ``results.json`` says about the references a score used."""
     lo, hi = reference_returns(env, dynamics)
-    return {"dynamics": dynamics, "random": lo, "expert": hi, "source": REFERENCE_SOURCES[dynamics]}
+    return {"dynamics": dynamics, "random": lo, "expert": hi, "source": REFERENCE_SOURCES[dynamics],
+            "scale": SCALE}
