@@ -113,3 +113,55 @@ def test_medium_replay_weights_stand_for_the_replay_buffer():
         assert w[0] == m["training"]["config"]["min_replay"] and sum(w) == m["medium"]["step"] == steps[-1]
     # hopper's snapshots at 10k, 30k, ..., 160k: boundaries at the midpoints (20k, 40k, 60k, 85k, 110k, ...)
     assert replay_weights("hopper") == [10000, 10000, 20000, 20000, 25000, 25000, 20000, 20000, 10000]
+
+
+def test_minari_export_loads_in_minari_and_trains_back(recorded, tmp_path, monkeypatch, capsys):
+    """--export-minari writes a local Minari dataset: minari loads the same episodes and returns with T+1
+    observations, the final one computed by replaying the last action from the recorded last state, which on
+    episodes cut one step short reproduces the recorded observation; the metadata holds our references and the
+    file's hash; --dataset minari:ID loads the same data (same hash) and trains; a taken ID or a missing one is
+    one error."""
+    import minari
+
+    from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.data.d4rl import read_infos
+    from minsubdt_jax.data.dataset import from_padded
+    from minsubdt_jax.envs.check import final_observations
+    from minsubdt_jax.train import train
+
+    f = recorded["medium"]
+    d, infos = f.data, read_infos(f.path)
+    # the last step of every episode taken off: its "final observation" must be the recorded one
+    short = from_padded(d.observations, d.actions, d.rewards, d.lengths - 1, np.zeros(d.num_trajectories, bool))
+    keep = np.concatenate([np.arange(s, s + L - 1) for s, L in zip(np.cumsum(d.lengths) - d.lengths, d.lengths)])
+    got = final_observations("hopper", "brax", short, infos["qpos"][keep], infos["qvel"][keep])
+    np.testing.assert_allclose(got, d.observations[np.arange(d.num_trajectories), d.lengths - 1], atol=1e-4)
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    args = ["--env", "hopper", "--dataset", f.path, "--export-minari", "test/hopper-medium-v0"]
+    assert data_main(args) == 0 and "--dataset minari:test/hopper-medium-v0" in capsys.readouterr().out
+    ds = minari.load_dataset("test/hopper-medium-v0")
+    eps = list(ds.iterate_episodes())
+    assert len(eps) == d.num_trajectories and ds.total_steps == d.num_transitions
+    for i, e in enumerate(eps):
+        L = d.lengths[i]
+        assert e.observations.shape == (L + 1, 11) and bool(e.terminations[-1]) == bool(d.terminals[i])
+        assert bool(e.truncations[-1]) != bool(d.terminals[i]) and not e.terminations[:-1].any()
+        np.testing.assert_array_equal(e.observations[:L], d.observations[i, :L])
+        assert np.sum(e.rewards) == pytest.approx(d.returns[i], rel=1e-5)
+    meta = ds.storage.metadata
+    lo, hi = reference_returns("hopper", "brax")
+    assert (meta["ref_min_score"], meta["ref_max_score"]) == (pytest.approx(lo), pytest.approx(hi))
+    assert meta["minsubdt_sha256"] == f.sha256 and meta["minsubdt_dynamics"] == "brax"
+    assert 100 * minari.get_normalized_score(ds, d.returns[:1])[0] == pytest.approx(
+        normalized_score("hopper", d.returns[:1])[0], rel=1e-5)
+    back = resolve_dataset("hopper", "minari:test/hopper-medium-v0", verbose=False)
+    assert back.sha256 == f.sha256 and back.dynamics == "brax"
+    import dataclasses
+
+    res = train(dataclasses.replace(PRESETS["smoke"], env="hopper", dataset="minari:test/hopper-medium-v0",
+                                    episode_length=1000, out=str(tmp_path / "run")), verbose=False)
+    assert res["dataset"]["sha256"] == f.sha256 and np.isfinite(res["eval"]["normalized_score_mean"])
+    assert data_main(args) == 2 and "exists already" in capsys.readouterr().err
+    with pytest.raises(Exception, match="no local Minari dataset 'nope'"):
+        resolve_dataset("hopper", "minari:nope", verbose=False)

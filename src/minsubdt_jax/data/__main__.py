@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import sys
@@ -22,7 +23,8 @@ from ..costs import check_costs, cost_metrics, describe_metrics, spearman, traje
 from ..envs import ENVS, PHYSICS, resolve_physics
 from ..rundir import exit_code
 from ..subdominance import min_subdominance
-from .d4rl import replay_report
+from .d4rl import file_dynamics, replay_report
+from .minari_io import export_minari
 from .dataset import DatasetError
 from .named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary_line
 
@@ -46,6 +48,9 @@ def main(argv=None) -> int:
                    help="replay the file's transitions from its recorded physics states under each dynamics and "
                         "print how well each reproduces them")
     p.add_argument("--check-transitions", type=int, default=2000, help="transitions replayed by --check-dynamics")
+    p.add_argument("--export-minari", metavar="ID", default=None,
+                   help="write the dataset (named, or a file of ours) as the local Minari dataset ID (the [minari] "
+                        "extra; under $MINARI_DATASETS_PATH); train on it with --dataset minari:ID")
     p.add_argument("--costs", default=None,
                    help="comma-separated cost metrics (minsubdt_jax.costs; 'list' lists them): print the dataset's "
                         "mean cost and min-subdominance on them")
@@ -58,6 +63,9 @@ def main(argv=None) -> int:
     enable_compilation_cache()
     if a.check_dynamics:
         return exit_code(lambda: check(a.env, a.dataset, a.check_transitions, a.horizon, a.seed, a.physics))
+    if a.export_minari:
+        return exit_code(lambda: export(a.env, a.dataset, a.export_minari, a.transitions, a.horizon, a.seed,
+                                        a.physics))
     if a.dataset not in NAMED_DATASETS:
         p.error(f"--dataset must be one of {list(NAMED_DATASETS)} to record (a file is for --check-dynamics)")
     return exit_code(lambda: record(a.env, a.dataset, a.transitions, a.horizon, a.seed, a.force, a.physics, a.costs))
@@ -94,6 +102,20 @@ def print_costs(env: str, data, costs: str, horizon: int) -> dict:
     print(f"  min-subdominance {ms.mean():.3f} ± {ms.std():.3f} (beta 1); Spearman(-min-subdominance, true return) "
           f"{out['spearman_neg_min_subdominance_vs_return']:.3f}")
     return out
+
+
+def export(env: str, dataset: str, dataset_id: str, transitions: int | None, horizon: int, seed: int,
+           physics: str) -> str:
+    """Record or load ``dataset`` and write it as the local Minari dataset ``dataset_id``
+    (:func:`~minsubdt_jax.data.minari_io.export_minari`), in the dynamics it was recorded in."""
+    if importlib.util.find_spec("minari") is None:  # before anything is recorded
+        raise DatasetError("--export-minari needs the minari package: pip install 'minsubdt-jax[minari]'")
+    f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed, physics=physics)
+    dynamics, how = file_dynamics(f, env)
+    folder = export_minari(f, env, dataset_id, dynamics)
+    print(f"wrote the Minari dataset {dataset_id} ({f.data.num_trajectories} episodes, {dynamics} dynamics: "
+          f"{how['how']}) to {folder}; train on it with --dataset minari:{dataset_id}")
+    return folder
 
 
 def check(env: str, dataset: str, transitions: int, horizon: int, seed: int, physics: str) -> dict:

@@ -147,6 +147,9 @@ def file_dynamics(f: DatasetFile, env: str, dynamics: str | None = None) -> tupl
         return check_dynamics_name(dynamics), {"how": "given"}
     if f.dynamics is not None:
         return f.dynamics, {"how": "recorded in the file"}
+    if f.path.startswith("minari:"):
+        raise DatasetError(f"{f.path} names no dynamics (it was not exported by minsubdt-jax): pass --dynamics brax or "
+                           f"d4rl (Minari's own MuJoCo datasets are gymnasium v5, which is neither)")
     infos = read_infos(f.path)  # a damaged file raises here: no fallback
     if "qpos" not in infos or "qvel" not in infos:
         return "d4rl", {"how": "a D4RL-layout file without physics states: D4RL's (gym's) dynamics assumed"}

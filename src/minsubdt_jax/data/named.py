@@ -35,6 +35,7 @@ from ..envs import check_dataset, env_spec, resolve_physics
 from ..evaluation import score_episodes
 from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
+from .minari_io import PREFIX, open_minari
 
 NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
 # a recipe that changed gets a new file name, so no cache file recorded the old way stands in for the new one
@@ -129,6 +130,8 @@ def resolve_dataset(env: str, dataset: str, *, transitions: int | None = None, h
       DatasetError: a bad file or name, a damaged cache file (the message says how to record it again), or data
         that cannot come from ``env``.
     """
+    if dataset.startswith(PREFIX):  # a local Minari dataset
+        return _checked(open_minari(dataset), env)
     if os.sep in dataset or dataset.endswith((".hdf5", ".h5")) or os.path.exists(dataset):
         return _checked(open_d4rl(dataset, horizon), env)
     if dataset not in NAMED_DATASETS:

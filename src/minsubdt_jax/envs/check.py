@@ -42,15 +42,32 @@ def replay_errors(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: 
     e, s = ep[pick], t[pick]
     q, v, a = qpos[pick], qvel[pick], act[e, s]
     source = _source_convention(env, q, v, obs[e, s])
-    out = {}
-    for dyn in DYNAMICS:
-        rules = env_rules(env, dyn)
-        sims = Sims(env, dyn, len(pick), threads=0)
-        sims.set_state(q + mj_model(env, dyn).qpos0 - mj_model(env, source).qpos0, v)
-        sims.step(a)
-        nxt = observe(rules, np.array(sims.qpos), np.array(sims.qvel), sims.torso(), np)
-        out[dyn] = np.abs(nxt - obs[e, s + 1]).max(axis=1)
-    return out
+    return {dyn: np.abs(_step_observe(env, dyn, source, q, v, a) - obs[e, s + 1]).max(axis=1) for dyn in DYNAMICS}
+
+
+def _step_observe(env: str, dynamics: str, source: str, qpos, qvel, actions) -> np.ndarray:
+    """``[n, obs]``: the observation after one step of ``actions [n, act]`` from the states ``qpos, qvel`` (in
+    ``source``'s qpos convention) under ``dynamics``, in C MuJoCo."""
+    sims = Sims(env, dynamics, len(qpos), threads=0)
+    sims.set_state(qpos + mj_model(env, dynamics).qpos0 - mj_model(env, source).qpos0, qvel)
+    sims.step(actions)
+    return observe(env_rules(env, dynamics), np.array(sims.qpos), np.array(sims.qvel), sims.torso(), np)
+
+
+def final_observations(env: str, dynamics: str, data, qpos, qvel) -> np.ndarray:
+    """``[N, obs]``: each episode's observation after its last action (the T+1-th, which D4RL-layout files do not
+    keep), by one step of that action from the recorded last state under ``dynamics``: exact for a file recorded
+    in it (:func:`replay_errors` checks how well a dynamics reproduces a file). ``data``, ``qpos``, ``qvel`` as in
+    :func:`replay_errors`."""
+    lengths = np.asarray(data.lengths)
+    last = np.cumsum(lengths) - 1  # the flat row of each episode's last step
+    qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
+    if qpos.shape[0] != lengths.sum():
+        raise ValueError(f"the physics states hold {qpos.shape[0]} rows, the data {lengths.sum()} transitions")
+    obs = np.asarray(data.observations, np.float64)[np.arange(len(lengths)), lengths - 1]
+    act = np.clip(np.asarray(data.actions, np.float64)[np.arange(len(lengths)), lengths - 1], -1.0, 1.0)
+    source = _source_convention(env, qpos[last], qvel[last], obs)
+    return _step_observe(env, dynamics, source, qpos[last], qvel[last], act)
 
 
 def check_dynamics(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: int = 0) -> dict:
