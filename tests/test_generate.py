@@ -119,8 +119,8 @@ def test_minari_export_loads_in_minari_and_trains_back(recorded, tmp_path, monke
     """--export-minari writes a local Minari dataset: minari loads the same episodes and returns with T+1
     observations, the final one computed by replaying the last action from the recorded last state, which on
     episodes cut one step short reproduces the recorded observation; the metadata holds our references and the
-    file's hash; --dataset minari:ID loads the same data (same hash) and trains; a taken ID or a missing one is
-    one error."""
+    file's hash; its env spec makes our env as a gymnasium env, which replays a recorded episode; --dataset
+    minari:ID loads the same data (same hash) and trains; a taken ID or a missing one is one error."""
     import minari
 
     from minsubdt_jax.config import PRESETS
@@ -155,6 +155,16 @@ def test_minari_export_loads_in_minari_and_trains_back(recorded, tmp_path, monke
     assert meta["minsubdt_sha256"] == f.sha256 and meta["minsubdt_dynamics"] == "brax"
     assert 100 * minari.get_normalized_score(ds, d.returns[:1])[0] == pytest.approx(
         normalized_score("hopper", d.returns[:1])[0], rel=1e-5)
+    env = ds.recover_environment()  # what d3rlpy's get_minari calls: our env as a gymnasium env
+    assert env.spec.id == "minsubdt/Hopper-brax-v0" and env.observation_space == ds.observation_space
+    u = env.unwrapped  # it steps as the recorder did: episode 0 replayed from its first recorded state
+    env.reset(seed=0)
+    u.sims.set_state(infos["qpos"][:1].astype(np.float64), infos["qvel"][:1].astype(np.float64))
+    for t in range(d.lengths[0]):
+        obs, r, term, trunc, _ = env.step(d.actions[0, t])
+        assert r == pytest.approx(d.rewards[0, t], abs=1e-4) and term == (t == d.lengths[0] - 1 and d.terminals[0])
+        if t + 1 < d.lengths[0]:
+            np.testing.assert_allclose(obs, d.observations[0, t + 1], atol=1e-4)
     back = resolve_dataset("hopper", "minari:test/hopper-medium-v0", verbose=False)
     assert back.sha256 == f.sha256 and back.dynamics == "brax"
     import dataclasses

@@ -9,8 +9,9 @@ keeps: the final one is computed by one step of the last action from the recorde
 ``terminations`` mark a fall, ``truncations`` a time-out or the end of the data. Its metadata holds our reference
 scores (``ref_min_score``, ``ref_max_score``: Minari's ``get_normalized_score`` gives the 0-1 fraction, ours the
 0-100 score), the file's content hash, its env, dynamics and physics, and its recording recipe (the file name).
-The dataset is written under ``MINARI_DATASETS_PATH`` (default ``~/.minari/datasets``) with no env spec, as our
-envs are not gymnasium ones.
+The dataset is written under ``MINARI_DATASETS_PATH`` (default ``~/.minari/datasets``) with the env spec of our
+env as a gymnasium env (:mod:`minsubdt_jax.envs.gym_env`, e.g. ``minsubdt/Walker-brax-v0``), so
+``dataset.recover_environment()`` (which d3rlpy's ``get_minari`` calls) makes it.
 
 In (:func:`open_minari`): ``--dataset minari:ID`` loads a local Minari dataset of this env's shapes as a
 :class:`~minsubdt_jax.data.d4rl.DatasetFile` (the final observations dropped; its hash is of the episodes as
@@ -20,7 +21,6 @@ loaded). A dataset we exported names its dynamics; any other needs ``--dynamics`
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
@@ -67,9 +67,7 @@ def export_minari(f: DatasetFile, env: str, dataset_id: str, dynamics: str) -> s
             terminations=(end & bool(d.terminals[i])).tolist(), truncations=(end & (not d.terminals[i])).tolist()))
     box = lambda dim, lim: gym.spaces.Box(-lim, lim, (dim,), np.float32)  # noqa: E731
     lo, hi = reference_returns(env, dynamics)
-    with warnings.catch_warnings():  # "env_spec is None": on purpose, our envs are not gymnasium's (docstring)
-        warnings.filterwarnings("ignore", message="env_spec is None")
-        ds = _create(minari, dataset_id, buffers, d, box, f, env, dynamics)
+    ds = _create(minari, dataset_id, buffers, d, box, f, env, dynamics)
     ds.storage.update_metadata({"ref_min_score": float(lo), "ref_max_score": float(hi), "minsubdt_sha256": f.sha256,
                                 "minsubdt_env": env, "minsubdt_dynamics": dynamics,
                                 "minsubdt_physics": f.physics or "unknown", "minsubdt_recipe": os.path.basename(f.path),
@@ -78,8 +76,13 @@ def export_minari(f: DatasetFile, env: str, dataset_id: str, dynamics: str) -> s
 
 
 def _create(minari, dataset_id, buffers, d, box, f, env, dynamics):
+    import gymnasium as gym
+
+    from ..envs.gym_env import IDS
+
     return minari.create_dataset_from_buffers(
-        dataset_id, buffers, observation_space=box(d.obs_dim, np.inf), action_space=box(d.act_dim, 1.0),
+        dataset_id, buffers, env=gym.spec(IDS[(env, dynamics)]), observation_space=box(d.obs_dim, np.inf),
+        action_space=box(d.act_dim, 1.0),
         algorithm_name=f"minsubdt-jax recording {os.path.basename(f.path)}", author={"minsubdt-jax"},
         description=f"{env} episodes exported by minsubdt-jax from {os.path.basename(f.path)} (sha256 {f.sha256}), "
                     f"{dynamics} dynamics", data_format="hdf5")
