@@ -75,14 +75,12 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     verbose = verbose and main
     out = cfg.run_dir()
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
-    resumable = RESUMABLE_CHANGES if cfg.lr_schedule == "constant" else tuple(c for c in RESUMABLE_CHANGES
-                                                                            if c != "steps")  # the decay's end
     if resume and cfg.lr_schedule != "constant" and os.path.exists(os.path.join(out, "config.json")):
-        with open(os.path.join(out, "config.json")) as f:
+        with open(os.path.join(out, "config.json")) as f:  # the decay ends at --steps: it may not change
             if json.load(f)["steps"] != cfg.steps:
                 raise ValueError(f"--resume: --lr-schedule {cfg.lr_schedule} decays to 0 at the run's --steps: resume "
                                  f"with the same --steps")
-    check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, resumable, dataclasses.asdict(Config()))
+    check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES, dataclasses.asdict(Config()))
     mesh = make_mesh(cfg.devices, cfg.batch_size)  # checked before anything is written
     physics = resolve_physics(cfg.physics, mesh)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
