@@ -30,12 +30,15 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results", "curves")
+DEFAULT_METHODS = "minsubdt,dt"
 MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT and optimiser it takes
 
 
 def name_of(a) -> str:
     extra = ("" if a.lr_schedule == "constant" else f"-{a.lr_schedule}") + (f"-ema{a.ema:g}" if a.ema else "")
     extra += f"-costs-{a.costs.replace(',', '+')}" if a.costs else ""
+    extra += "" if a.methods == DEFAULT_METHODS else f"-{a.methods.replace(',', '+')}"
+    extra += f"-seed{a.seed}" if a.seed else ""
     return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
 
@@ -44,7 +47,7 @@ def run(a) -> dict:
     from minsubdt_jax.train import train
 
     out = os.path.join(a.runs_root, name_of(a))
-    cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=0,
+    cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=a.seed,
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
@@ -268,10 +271,11 @@ def main(argv=None) -> int:
                    help="snapshot: commit the curve so far of an unfinished run (same flags as its run)")
     p.add_argument("--env", default="walker")
     p.add_argument("--dataset", default="medium")
-    p.add_argument("--methods", default="minsubdt,dt")
+    p.add_argument("--methods", default=DEFAULT_METHODS)
     p.add_argument("--model", default="cpu", choices=sorted(MODELS))
     p.add_argument("--context", type=int, default=20)
     p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0, help="the first seed (more seeds of a curve: its own file)")
     p.add_argument("--steps", type=int, default=20_000)
     p.add_argument("--eval-every", type=int, default=2000)
     p.add_argument("--episodes", type=int, default=30)

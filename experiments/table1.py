@@ -33,7 +33,8 @@ import numpy as np
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
-from table1_report import DATASETS, ENVS, METHODS, PUBLISHED, markdown, plot_costs  # noqa: E402
+from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_CQL, markdown,  # noqa: E402
+                           plot_costs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -185,7 +186,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
         }
     averages = {}
     for label, keep in (("all", DATASETS), ("without medium-replay", ("medium-expert", "medium"))):
-        for m in METHODS:
+        for m in COLUMNS:
             vals = [table[f"{d}/{e}"][m]["mean"] for d in keep for e in ENVS if m in table.get(f"{d}/{e}", {})]
             averages.setdefault(label, {})[m] = {"mean": float(np.mean(vals)) if vals else None, "cells": len(vals),
                                                  "of": len(keep) * len(ENVS)}
@@ -210,7 +211,8 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
     episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
     out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
            "cost_rank_agreement": costs, "data_files": files,
-           "published_seed_table1_gym_d4rl": {f"{d}/{e}": v for (d, e), v in PUBLISHED.items()}}
+           "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, cql=PUBLISHED_CQL[d, e])
+                                              for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
     with open(os.path.join(out_root, "table1.json"), "w") as f:
         json.dump(out, f, indent=2)
@@ -228,7 +230,9 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default="cpu")
     p.add_argument("--envs", nargs="+", default=list(ENVS), choices=ENVS)
     p.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
-    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=COLUMNS,
+                   help="the seed's DT-family columns by default; the critic agents' (cql: the seed's CQL column, "
+                   "iql, td3bc, minsubdt-iql, ...) are run when named")
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--runs-root", default="runs/table1", help="training run directories (checkpoints)")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"],

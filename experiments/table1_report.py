@@ -10,7 +10,10 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 ENVS = ("halfcheetah", "hopper", "walker")
 DATASETS = ("medium-expert", "medium", "medium-replay")
 METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
-METHOD_NAMES = {m: ALL_METHODS[m].label for m in METHODS}
+# the critic agents' columns (the seed's CQL among them, and MinSubDT's surrogate reward under IQL): shown once run
+CRITIC_METHODS = ("cql", "iql", "td3bc", "minsubdt-iql", "minsubdt-td3bc", "minsubdt-cql")
+COLUMNS = METHODS + CRITIC_METHODS
+METHOD_NAMES = {m: ALL_METHODS[m].label for m in COLUMNS}
 
 # Seed Table 1 (gym/D4RL v2 datasets, normalised by D4RL's references): not comparable one to one with ours.
 PUBLISHED = {
@@ -27,6 +30,18 @@ PUBLISHED = {
     }.items()
 }
 
+# The seed's CQL column (the DT paper's Table 2, from the CQL paper; gym MuJoCo, D4RL v0 data)
+PUBLISHED_CQL = {("medium-expert", "halfcheetah"): 62.4, ("medium-expert", "hopper"): 111.0,
+                 ("medium-expert", "walker"): 98.7, ("medium", "halfcheetah"): 44.4, ("medium", "hopper"): 58.0,
+                 ("medium", "walker"): 79.2, ("medium-replay", "halfcheetah"): 46.2, ("medium-replay", "hopper"): 48.6,
+                 ("medium-replay", "walker"): 26.7}
+
+
+def columns(table: dict) -> tuple:
+    """The DT-family columns, then each critic method that has a result in ``table``."""
+    present = {m for row in table.values() for m in row}
+    return METHODS + tuple(m for m in CRITIC_METHODS if m in present)
+
 
 def _cell(entry) -> str:
     """``mean ± std (seeds)``; one seed has no spread to show, so it says so instead of "± 0.0"."""
@@ -38,7 +53,8 @@ def _cell(entry) -> str:
 
 
 def markdown(out: dict) -> str:
-    cols = [METHOD_NAMES[m] for m in METHODS]
+    methods = columns(out["table"])
+    cols = [METHOD_NAMES[m] for m in methods]
     lines = [f"# Table 1 on our MJX datasets (preset `{out['preset']}`)", "",
              "Normalised score (100 = committed SAC expert, 0 = uniform random, in MJX), mean ± std over the "
              f"training seeds present (their count in brackets), {out.get('eval_episodes', '?')} evaluation "
@@ -57,11 +73,11 @@ def markdown(out: dict) -> str:
         v = out["dataset_score"].get(f"{d}/{e}")
         return "–" if v is None else f"{v:.1f}"
 
-    lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in METHODS))
+    lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in methods))
     for label, av in out["averages"].items():
         lines.append(f"| **average ({label})** | | | " + " | ".join(
-            "–" if av[m]["mean"] is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
-            for m in METHODS) + " |")
+            "–" if av.get(m, {}).get("mean") is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
+            for m in methods) + " |")
     lines += ["", "## Better than demonstrated?", "",
               "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
               "(none above it, one below), "
@@ -70,7 +86,7 @@ def markdown(out: dict) -> str:
               "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
     lines += cells(lambda d, e, row: " | ".join(
         "–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / {row[m]['rollout_min_subdominance']:.2f}"
-        for m in METHODS))
+        for m in methods))
     lines += ["", "## Cost representations: do they rank the demos like the true return?", "",
               "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
               "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
@@ -100,9 +116,10 @@ def markdown(out: dict) -> str:
     lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
               "Not comparable one to one with the table above: other physics, other behaviour policies, other "
               "references, 100k training steps. For orientation only.", "",
-              "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
+              "| dataset | env | " + " | ".join(METHOD_NAMES[m] for m in METHODS) + " | CQL |",
+              "|---|---|" + "---|" * (len(METHODS) + 1)]
     for (d, e), v in PUBLISHED.items():
-        lines.append(f"| {d} | {e} | " + " | ".join(f"{v[m]:.1f}" for m in METHODS) + " |")
+        lines.append(f"| {d} | {e} | " + " | ".join(f"{v[m]:.1f}" for m in METHODS) + f" | {PUBLISHED_CQL[d, e]:.1f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -125,7 +142,7 @@ def plot_costs(rows, env, png):
         demo = np.asarray(rs[0]["r"]["dataset"]["costs_sample"])
         groups = [("demos", demo)] + [(METHOD_NAMES[m], np.concatenate([np.asarray(r["r"]["eval"]["costs"])
                                                                        for r in rs if r["method"] == m]))
-                                      for m in METHODS if any(r["method"] == m for r in rs)]
+                                      for m in COLUMNS if any(r["method"] == m for r in rs)]
         for gi, (label, pts) in enumerate(groups):
             if pts.shape[1] >= 2:
                 ax.scatter(pts[:, 0], pts[:, 1], s=8 if gi == 0 else 18, alpha=0.35 if gi == 0 else 0.8, label=label)

@@ -283,7 +283,8 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     and nothing is written. Every field has a help text (from its comment in config.py)."""
     import dataclasses
 
-    from minsubdt_jax.config import PRESETS, Config, field_help, parse_args
+    from minsubdt_jax.config import PRESETS, Config, parse_args
+    from minsubdt_jax.flags import field_help
 
     cfg = dataclasses.replace(PRESETS["cpu"], env="hopper", seeds=2, costs="x_velocity,energy", ema_decay=0.99,
                               learning_rate=5e-4, out=str(tmp_path / "r"), target_return=-0.5)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import types
 import typing
 from dataclasses import dataclass
 
 from .costs import check_costs
+from .flags import add_flags, base_type
 from .envs import DYNAMICS, PHYSICS
 from .loggers import logger_names
 from .methods import METHODS, RETURNS_ALIASES
@@ -40,6 +40,19 @@ class Config:
     # MLP policy (--method bc-mlp)
     mlp_hidden: int = 256  # hidden width of the MLP policy (--method bc-mlp)
     mlp_layers: int = 2  # hidden layers of the MLP policy
+    # critic agents (--method iql | td3bc | cql | minsubdt-iql | ...): unset values take the agent's reference's
+    critic_batch_size: int = 256  # transitions per gradient step of a critic agent (all three references: 256)
+    discount: float = 0.99  # gamma of the critics' backup
+    tau: float = 0.005  # Polyak rate of the target networks
+    ac_hidden: int = 256  # hidden width of the actor, critics and value net
+    ac_layers: int | None = None  # their hidden layers; default IQL and TD3+BC 2, CQL 3 (CORL)
+    actor_lr: float | None = None  # Adam rate of the actor (and CQL's temperature); default 3e-4, CQL 3e-5 (CORL)
+    critic_lr: float = 3e-4  # Adam rate of the critics and IQL's value net
+    iql_expectile: float = 0.7  # IQL's expectile tau of the value loss (CORL's hopper medium-expert: 0.5)
+    iql_beta: float = 3.0  # IQL's inverse temperature of the advantage weights (CORL's hopper medium-expert: 6)
+    td3bc_alpha: float = 2.5  # TD3+BC's alpha: the actor maximises lambda Q with lambda = alpha / mean |Q|
+    cql_alpha: float = 10.0  # CQL's conservative weight (CORL's; the CQL paper's README: 5 or 10)
+    cql_actions: int = 10  # CQL's sampled actions per kind (uniform, pi(s), pi(s')) in the logsumexp
     # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
     learning_rate: float = 1e-4  # AdamW's peak learning rate
     weight_decay: float = 1e-4  # AdamW's weight decay
@@ -150,7 +163,8 @@ def validate(cfg: Config) -> Config:
         raise ValueError(f"--physics-threads must be >= 0 (0: all cores), got {cfg.physics_threads}")
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
                 "episode_length", "learning_rate", "beta", "warmup_steps", "cost_dim",
-                "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic")
+                "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic",
+                "critic_batch_size", "tau", "ac_hidden", "critic_lr", "iql_beta", "td3bc_alpha", "cql_actions")
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
@@ -165,7 +179,13 @@ def validate(cfg: Config) -> Config:
     if cfg.embed_dim % cfg.n_heads:
         raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
     if cfg.precision != "f32" and agents != {"dt"}:
-        raise ValueError(f"--precision {cfg.precision} is for the DT agent; --method {cfg.method} trains an MLP")
+        raise ValueError(f"--precision {cfg.precision} is for the DT agent; --method {cfg.method} trains the "
+                         f"{agents.pop()} agent")
+    for name in ("ac_layers", "actor_lr"):
+        if getattr(cfg, name) is not None and not getattr(cfg, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if not (0 <= cfg.discount <= 1 and 0 < cfg.iql_expectile < 1 and cfg.cql_alpha >= 0 and cfg.tau <= 1):
+        raise ValueError("need 0 <= --discount <= 1, 0 < --iql-expectile < 1, --cql-alpha >= 0, --tau <= 1")
     if not 0 <= cfg.ema_decay < 1:
         raise ValueError(f"--ema-decay must be in [0, 1) (0: off), got {cfg.ema_decay}")
     if not 0 <= cfg.cost_label_noise < 0.5:
@@ -176,59 +196,6 @@ def validate(cfg: Config) -> Config:
         raise ValueError(f"--alpha-max must be > 0, got {cfg.alpha_max}")
     distributed_settings(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
     return cfg
-
-
-def _base_type(tp):
-    if isinstance(tp, types.UnionType) or typing.get_origin(tp) is typing.Union:
-        return next(a for a in typing.get_args(tp) if a is not type(None))
-    return tp
-
-
-def field_help(cls) -> dict[str, str]:
-    """Each field's help, from the comments of ``cls``'s source (as tyro reads them): the comment on the field's
-    line, else the comment lines directly above it."""
-    import inspect
-    import io
-    import re
-    import tokenize
-
-    src = inspect.getsource(cls)
-    comments = {tok.start[0]: tok.string.lstrip("# ").rstrip()
-                for tok in tokenize.generate_tokens(io.StringIO(src).readline) if tok.type == tokenize.COMMENT}
-    lines, out = src.splitlines(), {}
-    for i, line in enumerate(lines, 1):
-        m = re.match(r"\s+(\w+)\s*:[^=]*=", line)
-        if not m or line.lstrip().startswith("#"):
-            continue
-        if i in comments:
-            out[m.group(1)] = comments[i]
-            continue
-        block, j = [], i - 1
-        while j in comments and lines[j - 1].lstrip().startswith("#"):
-            block.insert(0, comments[j])
-            j -= 1
-        out[m.group(1)] = " ".join(block)
-    return out
-
-
-def add_flags(parser: argparse.ArgumentParser, cls, choices: dict, presets: dict | None = None,
-              default_preset: str | None = None) -> None:
-    """One ``--field-name`` flag per field of dataclass ``cls``, typed from its annotation, default ``None``
-    (so that only the flags given override a preset), its help from the field's comment (:func:`field_help`) and
-    its default: the ``default_preset``'s value, with the other ``presets``' where they differ."""
-    hints, helps = typing.get_type_hints(cls), field_help(cls)
-    for f in dataclasses.fields(cls):
-        default = f"default: {f.default}"
-        if presets and f.name != "preset":
-            values = {name: getattr(pc, f.name) for name, pc in presets.items()}
-            if len(set(map(repr, values.values()))) > 1:
-                default = f"default: {values[default_preset]}, the {default_preset} preset's; " + ", ".join(
-                    f"{name}: {v}" for name, v in values.items() if name != default_preset)
-        kw = {"default": None, "type": _base_type(hints[f.name]),
-              "help": f"{helps.get(f.name, '')} ({default})".replace("%", "%%").lstrip()}
-        if f.name in choices:
-            kw["choices"] = choices[f.name]
-        parser.add_argument("--" + f.name.replace("_", "-"), **kw)
 
 
 def parse_args(argv=None) -> tuple[Config, bool]:
@@ -281,11 +248,11 @@ def load_config_file(path: str) -> dict:
         raise ValueError(f"--config {path}: unknown field(s) {unknown}; the fields are Config's "
                          f"(python -m minsubdt_jax.train --help)")
     for k, v in data.items():
-        tp = _base_type(hints[k])
+        tp = base_type(hints[k])
         optional = hints[k] is not tp
         ok = (v is None and optional) or isinstance(v, tp) and not (tp is int and isinstance(v, bool)) or (
             tp is float and isinstance(v, int) and not isinstance(v, bool))
         if not ok:
             raise ValueError(f"--config {path}: field {k!r} must be {tp.__name__}"
                              f"{' or null' if optional else ''}, got {v!r}")
-    return {k: float(v) if _base_type(hints[k]) is float and v is not None else v for k, v in data.items()}
+    return {k: float(v) if base_type(hints[k]) is float and v is not None else v for k, v in data.items()}

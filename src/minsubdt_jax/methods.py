@@ -8,7 +8,18 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``dt``                 Decision Transformer on the dataset's true rewards
 ``bc``                 behaviour cloning with the DT's architecture and context, every return token 0
 ``bc-mlp``             behaviour cloning with an MLP on the current state (the classic BC baseline)
+``iql``                IQL (Kostrikov et al. 2021) on the true rewards, scaled by 1000 / (max - min return)
+``td3bc``              TD3+BC (Fujimoto & Gu 2021) on the true rewards
+``cql``                CQL(H) (Kumar et al. 2020) on the true rewards
+``minsubdt-iql``       IQL on MinSubDT's surrogate reward (one reward, ``-min-subdominance``, at the last step)
+``minsubdt-td3bc``     TD3+BC on the surrogate reward
+``minsubdt-cql``       CQL on the surrogate reward
 =====================  =====================================================================================
+
+The surrogate reward is a trajectory's: it is paid once, at its last step, and nothing follows it, so for the
+critic agents every episode of a ``minsubdt-*`` method ends in a terminal transition (``episodic``), a time-out
+too; on the true rewards a time-out bootstraps (D4RL's ``qlearning_dataset``). What a discounted critic makes of
+one reward at step T: ``docs/critics.md``.
 """
 
 from __future__ import annotations
@@ -44,11 +55,13 @@ class Method:
       features: ``"engineered"`` or ``"learned"`` (eq. 3) cost features, for its min-subdominance.
       rewards: ``(dataset, min_subdominance [N]) -> [N, T]`` per-step rewards whose returns-to-go are its return
         tokens.
-      rtg_scale: returns-to-go are divided by this (``--rtg-scale`` overrides).
+      rtg_scale: returns-to-go (and the critics' rewards) are divided by this (``--rtg-scale`` overrides); None:
+        by (max - min episode return) / 1000 of the dataset, IQL's reward normalisation.
       target_from_data: evaluation target return: the dataset's best return (else 0; ``--target-return``
         overrides).
       subtract_rewards: at evaluation the return-to-go token falls by each reward received (true returns).
       returns_alias: its value of the older ``--returns`` flag, if it had one.
+      episodic: for critic agents, every episode's last step is a terminal transition (else only terminations').
     """
 
     name: str
@@ -56,10 +69,22 @@ class Method:
     agent: str
     features: str
     rewards: Callable
-    rtg_scale: float = 1.0
+    rtg_scale: float | None = 1.0
     target_from_data: bool = False
     subtract_rewards: bool = False
     returns_alias: str | None = None
+    episodic: bool = False
+
+    def scale(self, returns) -> float:
+        """The divisor of the return tokens and rewards for a dataset whose episodes have ``returns [N]`` (of this
+        method's rewards)."""
+        if self.rtg_scale is not None:
+            return self.rtg_scale
+        spread = float(np.max(returns) - np.min(returns))
+        if not spread > 0:
+            raise ValueError(f"--method {self.name} scales rewards by 1000 / (max - min episode return), and every "
+                             f"episode has the return {float(np.max(returns)):g}; give --rtg-scale")
+        return spread / 1000.0
 
     def target_return(self, returns) -> float:
         """The default evaluation target for a dataset whose episodes have ``returns [N]``."""
@@ -73,6 +98,12 @@ METHODS = {m.name: m for m in (
            returns_alias="true"),
     Method("bc", "BC (DT architecture)", "dt", "engineered", _zero, returns_alias="none"),
     Method("bc-mlp", "BC (MLP)", "mlp", "engineered", _zero),
+    Method("iql", "IQL", "iql", "engineered", _true, rtg_scale=None),
+    Method("td3bc", "TD3+BC", "td3bc", "engineered", _true),
+    Method("cql", "CQL", "cql", "engineered", _true),
+    Method("minsubdt-iql", "MinSubDT-IQL", "iql", "engineered", _surrogate, rtg_scale=None, episodic=True),
+    Method("minsubdt-td3bc", "MinSubDT-TD3+BC", "td3bc", "engineered", _surrogate, episodic=True),
+    Method("minsubdt-cql", "MinSubDT-CQL", "cql", "engineered", _surrogate, episodic=True),
 )}
 RETURNS_ALIASES = {m.returns_alias: m.name for m in METHODS.values() if m.returns_alias}
 

@@ -112,13 +112,16 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
                                       state_mean=mean, state_std=std)
         features = learned.features(dataset.observations, dataset.lengths, dataset.terminals)
     ms = np.asarray(min_subdominance(features, features, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True).value)
-    rtg_scale = cfg.rtg_scale or method.rtg_scale
+    rewards = np.asarray(method.rewards(dataset, ms), np.float32)
+    rtg_scale = cfg.rtg_scale or method.scale(rewards.sum(1))
     target = method.target_return(dataset.returns) if cfg.target_return is None else cfg.target_return
-    rtg = np.asarray(returns_to_go(method.rewards(dataset, ms), dataset.lengths)) / rtg_scale
+    rtg = np.asarray(returns_to_go(rewards, dataset.lengths)) / rtg_scale
     if not np.isfinite(rtg).all():
         raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
     prep = Prepared(source=source, costs=costs, features=features, learned=learned, min_subdominance=ms,
-                    sampler=sampler_data(dataset, rtg, mean, std), state_mean=mean, state_std=std, rtg_scale=rtg_scale,
+                    sampler=sampler_data(dataset, rtg, mean, std, rewards / rtg_scale,
+                                         np.ones_like(dataset.terminals) if method.episodic else dataset.terminals),
+                    state_mean=mean, state_std=std, rtg_scale=rtg_scale,
                     target_return=target, dynamics=dynamics, metrics=metrics)
     if verbose:
         _report(prep, cfg)

@@ -36,8 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from .agents import make_agent
-from .agents.base import PolicyInputs, eval_params, init_seed_states, make_optimizer, make_train_chunk
+from .agents import FIXED_STEPS, batch_size_of, make_agent
+from .agents.base import PolicyInputs, eval_params, init_seed_states, make_train_chunk, optimizer_for
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
 from .costs import cost_metrics
@@ -75,13 +75,16 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     verbose = verbose and main
     out = cfg.run_dir()
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
-    if resume and cfg.lr_schedule != "constant" and os.path.exists(os.path.join(out, "config.json")):
+    decays = cfg.lr_schedule != "constant" or methods[0].agent in FIXED_STEPS
+    if resume and decays and os.path.exists(os.path.join(out, "config.json")):
         with open(os.path.join(out, "config.json")) as f:  # the decay ends at --steps: it may not change
             if json.load(f)["steps"] != cfg.steps:
-                raise ValueError(f"--resume: --lr-schedule {cfg.lr_schedule} decays to 0 at the run's --steps: resume "
-                                 f"with the same --steps")
+                what = (f"--lr-schedule {cfg.lr_schedule}" if cfg.lr_schedule != "constant"
+                        else f"{methods[0].agent}'s actor learning rate")
+                raise ValueError(f"--resume: {what} decays to 0 at the run's --steps: resume with the same --steps")
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES, dataclasses.asdict(Config()))
-    mesh = make_mesh(cfg.devices, cfg.batch_size)  # checked before anything is written
+    batch_size = batch_size_of(methods[0].agent, cfg)
+    mesh = make_mesh(cfg.devices, batch_size)  # checked before anything is written
     physics = resolve_physics(cfg.physics, mesh)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     models = [(m, s) for m in methods for s in seeds]
@@ -114,7 +117,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     dataset = source.data
     agent = make_agent(methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
                        max(cfg.episode_length, dataset.max_len))
-    tx = make_optimizer(cfg)
+    tx = optimizer_for(agent, cfg)
     state = init_seed_states(agent, tx, [s for _, s in models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
     if resume and mngr.latest_step() is not None:
@@ -126,7 +129,8 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     if verbose and (mesh.size > 1 or len(models) > 1):
         print(f"{len(models)} model(s) ({len(methods)} method(s) x {len(seeds)} seed(s)) in one program; batch split "
               f"over {mesh.size} device(s) in "
-              f"{jax.process_count()} process(es): {cfg.batch_size // mesh.size} sequences each", flush=True)
+              f"{jax.process_count()} process(es): {batch_size // mesh.size} "
+              f"{'transitions' if hasattr(agent, 'make_step') else 'sequences'} each", flush=True)
     metrics_path = os.path.join(out, "metrics.jsonl")
     if main:
         truncate_metrics(metrics_path, start)
@@ -148,34 +152,36 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     t0 = time.time()
     step = start
     bar = progress(total=cfg.steps, initial=start, disable=not verbose)
-    while step < cfg.steps:
-        n = min(cfg.chunk_steps, cfg.steps - step)
-        if n not in chunks:
-            chunks[n] = make_train_chunk(agent, tx, cfg.batch_size, n, mesh, seed_axis=True, data_axis=data_axis,
-                                         ema_decay=cfg.ema_decay)
-        tc = time.time()
-        state, losses = chunks[n](state, data)
-        per_seed = np.asarray(gather(losses)).mean(0)  # [S]
-        if not np.isfinite(per_seed).all():
-            last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
-            raise ValueError(f"training diverged: non-finite loss {per_seed.tolist()} in steps {step + 1}-{step + n} "
-                             f"(not checkpointed; {last}); try a lower --learning-rate")
-        step += n
-        # records first, checkpoint last: a resumed run drops the records past its checkpoint and redoes them
-        log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
-             "chunk_seconds": time.time() - tc})
-        if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
-            rec = eval_record(step, evaluate(eval_params(state), cfg.eval_episodes_periodic))
-            if state.ema_params is not None:  # the raw parameters beside their average
-                raw = eval_record(step, evaluate(state.params, cfg.eval_episodes_periodic))
-                rec.update({k.replace("eval_", "eval_raw_", 1): v for k, v in raw.items() if k.startswith("eval_")
-                            and k not in ("eval_episodes", "eval_method", "eval_seed")})
-            log(rec)
-        mngr.save(step, args=ocp.args.StandardSave(state))
-        bar.set_postfix(loss=f"{per_seed.mean():.4f}")
-        bar.update(n)
+    try:  # an interruption (Ctrl-C, an error, a progress_fn that stops the run) still completes the last checkpoint
+        while step < cfg.steps:
+            n = min(cfg.chunk_steps, cfg.steps - step)
+            if n not in chunks:
+                chunks[n] = make_train_chunk(agent, tx, batch_size, n, mesh, seed_axis=True, data_axis=data_axis,
+                                             ema_decay=cfg.ema_decay)
+            tc = time.time()
+            state, losses = chunks[n](state, data)
+            per_seed = np.asarray(gather(losses)).mean(0)  # [S]
+            if not np.isfinite(per_seed).all():
+                last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
+                raise ValueError(f"training diverged: non-finite loss {per_seed.tolist()} in steps {step + 1}-"
+                                 f"{step + n} (not checkpointed; {last}); try a lower --learning-rate")
+            step += n
+            # records first, checkpoint last: a resumed run drops the records past its checkpoint and redoes them
+            log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
+                 "chunk_seconds": time.time() - tc})
+            if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
+                rec = eval_record(step, evaluate(eval_params(state), cfg.eval_episodes_periodic))
+                if state.ema_params is not None:  # the raw parameters beside their average
+                    raw = eval_record(step, evaluate(state.params, cfg.eval_episodes_periodic))
+                    rec.update({k.replace("eval_", "eval_raw_", 1): v for k, v in raw.items()
+                                if k.startswith("eval_") and k not in ("eval_episodes", "eval_method", "eval_seed")})
+                log(rec)
+            mngr.save(step, args=ocp.args.StandardSave(state))
+            bar.set_postfix(loss=f"{per_seed.mean():.4f}")
+            bar.update(n)
+    finally:
+        mngr.wait_until_finished()
     bar.close()
-    mngr.wait_until_finished()
     train_seconds = time.time() - t0
 
     describe = lambda m: {"name": m.name, "label": m.label, "agent": m.agent}  # noqa: E731
@@ -222,15 +228,18 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     return results
 
 
+PER_MODEL_FIELDS = ("returns_to_go", "rewards", "last_done")  # what a method's data changes: its rewards
+
+
 def stack_return_tokens(per_model: list[Prepared]):
-    """``(data, data_axis)`` for the train chunk: one model's sampler arrays, or, when the models' return tokens
-    differ (several methods, or learned costs per seed), the shared arrays with ``returns_to_go [M, N, T]``
-    stacked and a ``data_axis`` that maps only that field."""
+    """``(data, data_axis)`` for the train chunk: one model's sampler arrays, or, when the models' rewards differ
+    (several methods, or learned costs per seed), the shared arrays with the per-model fields (return tokens
+    ``[M, N, T]``, rewards ``[M, N, T]``, ``last_done [M, N]``) stacked and a ``data_axis`` that maps only those."""
     first = per_model[0].sampler
     if all(p is per_model[0] for p in per_model):
         return first, None
-    data = first.replace(returns_to_go=jnp.stack([p.sampler.returns_to_go for p in per_model]))
-    return data, jax.tree.map(lambda _: None, first).replace(returns_to_go=0)
+    data = first.replace(**{k: jnp.stack([getattr(p.sampler, k) for p in per_model]) for k in PER_MODEL_FIELDS})
+    return data, jax.tree.map(lambda _: None, first).replace(**{k: 0 for k in PER_MODEL_FIELDS})
 
 
 def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Prepared], mesh,

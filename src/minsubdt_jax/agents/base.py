@@ -41,6 +41,14 @@ def ema_decay_at(step, decay: float):
     return jnp.minimum(decay, (1.0 + step) / (10.0 + step))
 
 
+def ema_update(ema, params, step, decay: float):
+    """The moving average after ``step``'s update (None when the state keeps none)."""
+    if ema is None:
+        return None
+    d = ema_decay_at(step, decay)
+    return jax.tree.map(lambda e, p: d * e + (1.0 - d) * p, ema, params)
+
+
 def eval_params(state: TrainState):
     """The parameters a run evaluates and reports: the moving average when one is kept, else the raw ones."""
     return state.params if state.ema_params is None else state.ema_params
@@ -88,6 +96,12 @@ def make_optimizer(cfg) -> optax.GradientTransformation:
                                      optax.adamw(schedule, weight_decay=cfg.weight_decay)))
 
 
+def optimizer_for(agent: Agent, cfg) -> optax.GradientTransformation:
+    """The agent's optimiser: its own where it has one (a critic agent's per-network optimisers,
+    :mod:`~minsubdt_jax.agents.actor_critic`), else :func:`make_optimizer`'s AdamW."""
+    return agent.optimizer() if hasattr(agent, "optimizer") else make_optimizer(cfg)
+
+
 def init_state(agent: Agent, tx, key, ema: bool = False) -> TrainState:
     """Fresh parameters (from one half of ``key``), optimiser state, and the step rng (the other half); with
     ``ema`` the moving average starts at the parameters."""
@@ -110,10 +124,7 @@ def make_train_step(agent: Agent, tx, batch_size: int, mesh=None, ema_decay: flo
         loss, grads = jax.value_and_grad(lambda p: agent.loss(p, batch, k_drop))(state.params)
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
-        ema = state.ema_params
-        if ema is not None:
-            d = ema_decay_at(state.step, ema_decay)
-            ema = jax.tree.map(lambda e, p: d * e + (1.0 - d) * p, ema, params)
+        ema = ema_update(state.ema_params, params, state.step, ema_decay)
         return TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng, ema_params=ema), loss
 
     return step
@@ -126,8 +137,12 @@ def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None,
 
     With ``seed_axis`` the state has a leading seed axis (:func:`init_seed_states`) and every step is
     ``vmap``-ed over it: S independent models train in one program, ``losses [n_steps, S]``. ``data_axis``
-    0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one."""
-    step = make_train_step(agent, tx, batch_size, mesh, ema_decay)
+    0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one. A critic agent (one with
+    ``make_step``) steps with its own, :func:`~minsubdt_jax.agents.actor_critic.make_ac_step` on transitions."""
+    if hasattr(agent, "make_step"):
+        step = agent.make_step(batch_size, mesh, ema_decay)
+    else:
+        step = make_train_step(agent, tx, batch_size, mesh, ema_decay)
     if seed_axis:
         step = jax.vmap(step, in_axes=(0, data_axis))
 

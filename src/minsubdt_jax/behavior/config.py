@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 
-from ..config import add_flags
+from ..flags import add_flags
 from ..envs import ENVS, env_spec
 
 

@@ -1,12 +1,12 @@
-"""Datasets: trajectory container, D4RL hdf5 I/O, context-window sampler, named MJX datasets."""
+"""Datasets: trajectory container, D4RL hdf5 I/O, context-window and transition samplers, named MJX datasets."""
 
 from .d4rl import DatasetFile, load_d4rl, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_flat, from_padded
 from .named import NAMED_DATASETS, cache_dir, generate, generate_random, resolve_dataset
-from .sampler import Batch, SamplerData, sample_batch, sampler_data
+from .sampler import Batch, SamplerData, Transitions, sample_batch, sample_transitions, sampler_data
 
 __all__ = [
-    "Batch", "DatasetError", "DatasetFile", "NAMED_DATASETS", "SamplerData", "Trajectories", "cache_dir",
+    "Batch", "DatasetError", "DatasetFile", "NAMED_DATASETS", "SamplerData", "Trajectories", "Transitions", "cache_dir",
     "concatenate", "from_flat", "from_padded", "generate", "generate_random", "load_d4rl", "open_d4rl", "read_infos",
-    "resolve_dataset", "sample_batch", "sampler_data", "save_d4rl",
+    "resolve_dataset", "sample_batch", "sample_transitions", "sampler_data", "save_d4rl",
 ]

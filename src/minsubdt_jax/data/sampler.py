@@ -1,8 +1,14 @@
-"""Jitted sampler of fixed-length context windows for Decision Transformer training.
+"""Jitted samplers: fixed-length context windows for Decision Transformer training, and transitions
+``(s, a, r, s', done)`` for the critic agents.
 
-As in the official DT code: a trajectory is drawn with probability proportional to its length, a start
+Windows as in the official DT code: a trajectory is drawn with probability proportional to its length, a start
 step uniformly within it, and the window ``[start, start + K)`` is cut at the trajectory's end and
 left-padded to K. The mask is computed from the number of real tokens before any padding is written.
+
+Transitions as D4RL's ``qlearning_dataset``: every step with a next state in its episode, uniformly; the last step
+of an episode only where it ends the episode for the critic (``last_done``: a termination, or every episode for a
+reward that ends with the episode, MinSubDT's surrogate), and then with ``done = 1``. A time-out's last step has
+no next state in the data and is left out, so time-outs bootstrap.
 """
 
 from __future__ import annotations
@@ -19,14 +25,18 @@ from .dataset import Trajectories
 
 @struct.dataclass
 class SamplerData:
-    """Device arrays the sampler reads: states ``[N, T, obs]`` (normalised), actions ``[N, T, act]``,
-    returns_to_go ``[N, T]`` (already scaled), lengths ``[N]``, and log sampling weights ``[N]``."""
+    """Device arrays the samplers read: states ``[N, T, obs]`` (normalised), actions ``[N, T, act]``,
+    returns_to_go ``[N, T]`` (already scaled), lengths ``[N]``, log sampling weights ``[N]`` of the windows; for
+    transitions, the per-step rewards ``[N, T]`` (scaled alike) and ``last_done [N]`` (1.0: the last step is a
+    transition with ``done``; 0.0: it is left out)."""
 
     states: jax.Array
     actions: jax.Array
     returns_to_go: jax.Array
     lengths: jax.Array
     logits: jax.Array
+    rewards: jax.Array
+    last_done: jax.Array
 
 
 @struct.dataclass
@@ -41,11 +51,29 @@ class Batch:
     mask: jax.Array
 
 
-def sampler_data(dataset: Trajectories, returns_to_go, state_mean, state_std) -> SamplerData:
-    """Device-side arrays for :func:`sample_batch`; ``returns_to_go [N, T]`` as the model will see them."""
+@struct.dataclass
+class Transitions:
+    """A batch of transitions: states, next_states ``[B, obs]``, actions ``[B, act]``, rewards and done ``[B]``
+    (1.0: no bootstrap from ``next_states``)."""
+
+    states: jax.Array
+    actions: jax.Array
+    rewards: jax.Array
+    next_states: jax.Array
+    done: jax.Array
+
+
+def sampler_data(dataset: Trajectories, returns_to_go, state_mean, state_std, rewards=None,
+                 last_done=None) -> SamplerData:
+    """Device-side arrays for :func:`sample_batch` and :func:`sample_transitions`; ``returns_to_go [N, T]`` as
+    the model will see them, ``rewards [N, T]`` likewise (default: the dataset's), ``last_done [N]`` (default:
+    the dataset's terminations)."""
     rtg = np.asarray(returns_to_go, np.float32)
-    if rtg.shape != dataset.rewards.shape:
-        raise ValueError(f"returns_to_go must have shape {dataset.rewards.shape}, got {rtg.shape}")
+    rewards = dataset.rewards if rewards is None else np.asarray(rewards, np.float32)
+    last_done = dataset.terminals if last_done is None else np.asarray(last_done)
+    if rtg.shape != dataset.rewards.shape or rewards.shape != rtg.shape:
+        raise ValueError(f"returns_to_go and rewards must have shape {dataset.rewards.shape}, got {rtg.shape} and "
+                         f"{rewards.shape}")
     states = (dataset.observations - state_mean) / state_std
     states[~dataset.valid_mask()] = 0.0
     return SamplerData(
@@ -54,6 +82,8 @@ def sampler_data(dataset: Trajectories, returns_to_go, state_mean, state_std) ->
         returns_to_go=jnp.asarray(rtg),
         lengths=jnp.asarray(dataset.lengths, jnp.int32),
         logits=jnp.log(jnp.asarray(dataset.lengths, jnp.float32)),
+        rewards=jnp.asarray(np.where(dataset.valid_mask(), rewards, 0.0), jnp.float32),
+        last_done=jnp.asarray(last_done, jnp.float32),
     )
 
 
@@ -76,3 +106,18 @@ def sample_batch(rng, data: SamplerData, batch_size: int, context_len: int) -> B
         timesteps=t.astype(jnp.int32),
         mask=mask,
     )
+
+
+@partial(jax.jit, static_argnames=("batch_size",))
+def sample_transitions(rng, data: SamplerData, batch_size: int) -> Transitions:
+    """Sample ``batch_size`` transitions uniformly over the data's transitions (see module docstring): an episode
+    with probability proportional to its ``length - 1 + last_done`` transitions, a step uniformly among them."""
+    k_traj, k_step = jax.random.split(rng)
+    count = data.lengths - 1 + data.last_done  # [N] transitions per episode (0 for a timed-out 1-step episode)
+    traj = jax.random.categorical(k_traj, jnp.log(count), shape=(batch_size,))
+    n = count[traj]
+    t = jnp.minimum(jnp.floor(jax.random.uniform(k_step, (batch_size,)) * n), n - 1).astype(jnp.int32)
+    done = t == data.lengths[traj] - 1  # sampled only where last_done
+    nxt = jnp.minimum(t + 1, data.states.shape[1] - 1)
+    return Transitions(states=data.states[traj, t], actions=data.actions[traj, t], rewards=data.rewards[traj, t],
+                       next_states=data.states[traj, nxt], done=done.astype(jnp.float32))

@@ -1,0 +1,100 @@
+"""Train-step speed of every agent at its own settings, measured in one run: the DT at the `cpu` and `paper`
+presets (batch 64 windows), BC with an MLP (batch 64), and the critic agents IQL, TD3+BC and CQL at their
+references' settings (batch 256 transitions; IQL and TD3+BC 2 x 256 networks, CQL 3 x 256 with 10 + 10 + 10
+sampled actions).
+
+    python benchmarks/bench_agents.py [--agents dt-cpu dt-paper bc-mlp iql td3bc cql] [--steps 50] [--repeats 5]
+                                      [--json benchmarks/results/agents.json]
+
+Each agent's jitted ``lax.scan`` chunk of ``--steps`` steps (the one training runs: sampling, forward, backward,
+updates; one seed) on a synthetic walker-shaped dataset (64 episodes x 1000 steps, 17-d states, 6-d actions).
+The agents' chunks are timed in turn, ``--repeats`` rounds, so every agent sees the same machine state; the table
+gives the median ms/step and each agent's time relative to the DT at the `cpu` preset in the same round.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import statistics
+import sys
+import time
+
+import jax
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from bench_train_step import synthetic_dataset  # noqa: E402
+
+from minsubdt_jax.agents import batch_size_of, make_agent  # noqa: E402
+from minsubdt_jax.agents.base import init_state, make_train_chunk, optimizer_for  # noqa: E402
+from minsubdt_jax.config import PRESETS  # noqa: E402
+from minsubdt_jax.data import sampler_data  # noqa: E402
+
+# name -> (agent, preset whose fields it takes)
+AGENTS = {"dt-cpu": ("dt", "cpu"), "dt-paper": ("dt", "paper"), "bc-mlp": ("mlp", "cpu"), "iql": ("iql", "cpu"),
+          "td3bc": ("td3bc", "cpu"), "cql": ("cql", "cpu")}
+
+
+def make_chunk(name: str, steps: int, data):
+    agent_name, preset = AGENTS[name]
+    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0, steps=1_000_000)
+    agent = make_agent(agent_name, cfg, 17, 6, 1000)
+    tx = optimizer_for(agent, cfg)
+    batch = batch_size_of(agent_name, cfg)
+    state = init_state(agent, tx, jax.random.PRNGKey(0))
+    chunk = make_train_chunk(agent, tx, batch, steps)
+    t0 = time.perf_counter()
+    state, losses = chunk(state, data)
+    jax.block_until_ready(losses)
+    holder = {"state": state}
+
+    def run():
+        holder["state"], losses = chunk(holder["state"], data)
+        jax.block_until_ready(losses)
+
+    return run, time.perf_counter() - t0, batch
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--agents", nargs="+", default=list(AGENTS), choices=list(AGENTS))
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--json", default=None)
+    a = p.parse_args(argv)
+    ds = synthetic_dataset()
+    mean, std = ds.state_stats()
+    data = sampler_data(ds, ds.rewards, mean, std)
+    runs = {n: make_chunk(n, a.steps, data) for n in a.agents}
+    times = {n: [] for n in a.agents}
+    for _ in range(a.repeats):
+        for n, (run, _, _) in runs.items():
+            t0 = time.perf_counter()
+            run()
+            times[n].append((time.perf_counter() - t0) / a.steps)
+    ref = times.get("dt-cpu")
+    rows = []
+    for n in a.agents:
+        ms = 1e3 * statistics.median(times[n])
+        rel = statistics.median(t / r for t, r in zip(times[n], ref)) if ref else float("nan")
+        rows.append({"agent": n, "batch": runs[n][2], "ms_per_step": ms, "steps_per_s": 1e3 / ms,
+                     "relative_to_dt_cpu": rel, "compile_s": runs[n][1]})
+    print("| agent | batch | ms/step | steps/s | vs DT cpu (same round) | compile + first chunk, s |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['agent']} | {r['batch']} | {r['ms_per_step']:.2f} | {r['steps_per_s']:.0f} | "
+              f"{r['relative_to_dt_cpu']:.2f} | {r['compile_s']:.1f} |")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump({"rows": rows, "steps": a.steps, "repeats": a.repeats, "backend": jax.default_backend(),
+                       "device": jax.devices()[0].device_kind, "cpus": os.cpu_count(), "jax": jax.__version__,
+                       "numpy": np.__version__}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,102 @@
+"""The critic agents' networks, one family for all of them (as unifloral's): an MLP torso, an ``nn.vmap``-ed
+ensemble of Q-functions, a state-value net, and three actors: deterministic (TD3+BC), a Gaussian with a tanh on
+its mean and a state-independent log-std (IQL's ``NormalTanhPolicy`` without a squashed distribution), and a
+tanh-squashed Gaussian with a state-dependent log-std (SAC, CQL). Inputs are normalised states ``[B, obs]`` and
+actions in ``[-1, 1]``; the leading dimensions may be anything."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from ..behavior.networks import MLP
+
+
+class Critic(nn.Module):
+    """``(states [..., obs], actions [..., act]) -> Q [...]``."""
+
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, states, actions):
+        return nn.Dense(1)(MLP(self.hidden)(jnp.concatenate([states, actions], -1)))[..., 0]
+
+
+class Critics(nn.Module):
+    """``num`` independent :class:`Critic` s in one module (``nn.vmap`` over their parameters): ``Q [num, ...]``."""
+
+    hidden: Sequence[int]
+    num: int = 2
+
+    @nn.compact
+    def __call__(self, states, actions):
+        ensemble = nn.vmap(Critic, variable_axes={"params": 0}, split_rngs={"params": True}, in_axes=None,
+                           out_axes=0, axis_size=self.num)
+        return ensemble(self.hidden)(states, actions)
+
+
+class Value(nn.Module):
+    """``states [..., obs] -> V [...]``."""
+
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, states):
+        return nn.Dense(1)(MLP(self.hidden)(states))[..., 0]
+
+
+class DeterministicActor(nn.Module):
+    """``states -> actions = tanh(MLP(states))`` (TD3+BC)."""
+
+    act_dim: int
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, states):
+        return jnp.tanh(nn.Dense(self.act_dim)(MLP(self.hidden)(states)))
+
+
+def gaussian_log_prob(x, mean, log_std):
+    """Log-density ``[...]`` of a diagonal Gaussian at ``x [..., act]``, summed over the action dims."""
+    return jnp.sum(-0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi), -1)
+
+
+class TanhMeanGaussianActor(nn.Module):
+    """IQL's actor (ikostrikov/implicit_q_learning ``policy.NormalTanhPolicy``, ``tanh_squash_distribution=False``):
+    ``states -> (mean = tanh(Dense(MLP)), log_std)``, the log-std one trained vector clipped to ``[-5, 2]``."""
+
+    act_dim: int
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, states):
+        mean = jnp.tanh(nn.Dense(self.act_dim)(MLP(self.hidden)(states)))
+        log_std = self.param("log_std", nn.initializers.zeros, (self.act_dim,))
+        return mean, jnp.broadcast_to(jnp.clip(log_std, -5.0, 2.0), mean.shape)
+
+
+class TanhGaussianActor(nn.Module):
+    """The SAC/CQL actor (CORL ``TanhGaussianPolicy``): ``states -> (mean, log_std)`` of the pre-tanh Gaussian, with
+    ``log_std = m * head + o`` for trained scalars ``m = 1``, ``o = -1`` at init, clipped to ``[-20, 2]``."""
+
+    act_dim: int
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, states):
+        out = nn.Dense(2 * self.act_dim)(MLP(self.hidden)(states))
+        mean, raw = out[..., :self.act_dim], out[..., self.act_dim:]
+        m = self.param("log_std_multiplier", nn.initializers.ones, ())
+        o = self.param("log_std_offset", lambda k, s: -jnp.ones(s), ())
+        return mean, jnp.clip(m * raw + o, -20.0, 2.0)
+
+
+def tanh_gaussian_sample(rng, mean, log_std):
+    """``(actions [..., act], log_prob [...])``: a reparameterised sample of ``tanh(N(mean, std))`` and its
+    log-density, with the tanh's change of variables ``log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u))``."""
+    u = mean + jnp.exp(log_std) * jax.random.normal(rng, mean.shape)
+    correction = jnp.sum(2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u)), -1)
+    return jnp.tanh(u), gaussian_log_prob(u, mean, log_std) - correction

@@ -1,0 +1,215 @@
+"""The critic agents (IQL, TD3+BC, CQL) on their shared actor-critic base: losses against hand computations,
+bootstrapping, which network each loss moves, a one-step bandit, and the CLI cut and resumed."""
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from minsubdt_jax.agents import make_agent
+from minsubdt_jax.agents.base import PolicyInputs, init_state, make_train_chunk, optimizer_for
+from minsubdt_jax.agents.cql.losses import cql_logsumexp, temperature_loss
+from minsubdt_jax.agents.critic_networks import tanh_gaussian_sample
+from minsubdt_jax.agents.iql.losses import advantage_weights, expectile_loss
+from minsubdt_jax.agents.td3bc.losses import bc_lambda
+from minsubdt_jax.config import Config
+from minsubdt_jax.data import Transitions, sample_transitions, sampler_data
+from minsubdt_jax.data.dataset import Trajectories
+
+AGENTS = ("iql", "td3bc", "cql")
+# each loss and the networks it may move
+MOVES = {"iql": {"value": {"value"}, "actor": {"actor"}, "critic": {"critic"}},
+         "td3bc": {"critic": {"critic"}, "actor": {"actor"}},
+         "cql": {"actor": {"actor"}, "temperature": {"log_alpha"}, "td": {"critic"}, "conservative": {"critic"}}}
+TINY = dict(ac_hidden=16, ac_layers=1, critic_batch_size=8, steps=100)
+STEPS = 300  # the bandit's gradient steps
+
+
+def _agent(name, obs=3, act=2, **kw):
+    return make_agent(name, dataclasses.replace(Config(), **{**TINY, **kw}), obs, act, 10)
+
+
+def _batch(obs=3, act=2, b=8, done=0.0, seed=0):
+    r = np.random.default_rng(seed)
+    f = lambda *s: jnp.asarray(r.uniform(-1, 1, s), jnp.float32)  # noqa: E731
+    return Transitions(states=f(b, obs), actions=f(b, act), rewards=f(b), next_states=f(b, obs),
+                       done=jnp.full((b,), done, jnp.float32))
+
+
+def test_losses_by_hand():
+    # IQL: the expectile weights tau above, 1 - tau below; the AWR weights clipped at 100
+    np.testing.assert_allclose(expectile_loss(jnp.array([1.0, -1.0, 2.0]), 0.7), [0.7, 0.3, 2.8], rtol=1e-6)
+    np.testing.assert_allclose(advantage_weights(jnp.array([0.0, 1.0, 10.0]), 3.0), [1.0, np.exp(3.0), 100.0],
+                               rtol=1e-6)
+    # TD3+BC: lambda = alpha / mean |Q|, no gradient through it
+    q = jnp.array([1.0, -3.0])
+    assert float(bc_lambda(q, 2.5)) == pytest.approx(1.25)
+    np.testing.assert_array_equal(jax.grad(lambda x: bc_lambda(x, 2.5))(q), [0.0, 0.0])
+    # CQL: importance-sampled logsumexp over N uniform, N pi(s') and N pi(s) actions (N = 2, |A| = 3), brute force
+    qr, qn, qc = jnp.array([[1.0], [2.0]]), jnp.array([[0.5], [-1.0]]), jnp.array([[3.0], [0.0]])
+    lpn, lpc = jnp.array([[-1.0], [-2.0]]), jnp.array([[0.5], [-0.5]])
+    terms = [1 - 3 * np.log(0.5), 2 - 3 * np.log(0.5), 0.5 + 1, -1 + 2, 3 - 0.5, 0 + 0.5]
+    assert float(cql_logsumexp(qr, qn, qc, lpn, lpc, 3)[0]) == pytest.approx(np.log(np.sum(np.exp(terms))), rel=1e-6)
+    # a constant Q = c over all actions: the penalty's logsumexp is c + log sum exp(-log rho), whatever c
+    for c in (0.0, 5.0):
+        full = lambda x: jnp.full((2, 1), x)  # noqa: E731
+        got = cql_logsumexp(full(c), full(c), full(c), lpn, lpc, 3)[0] - c
+        assert float(got) == pytest.approx(np.log(2 * 8 + np.exp(1) + np.exp(2) + np.exp(-0.5) + np.exp(0.5)), rel=1e-5)
+    # SAC's temperature: -mean(log alpha (log pi + target)), d/d log alpha = -mean(log pi + target)
+    lp = jnp.array([-1.0, -3.0])
+    assert float(temperature_loss(0.5, lp, -2.0)) == pytest.approx(2.0)
+    assert float(jax.grad(temperature_loss)(0.5, lp, -2.0)) == pytest.approx(4.0)
+    # the tanh-Gaussian's log-density: change of variables, in float64 numpy
+    mean, log_std = jnp.array([[0.3, -1.0]]), jnp.array([[-0.5, 0.2]])
+    a, logp = tanh_gaussian_sample(jax.random.PRNGKey(0), mean, log_std)
+    u = np.arctanh(np.asarray(a, np.float64))
+    m, sd = np.asarray(mean, np.float64), np.exp(np.asarray(log_std, np.float64))
+    ref = np.sum(-0.5 * ((u - m) / sd) ** 2 - np.log(sd) - 0.5 * np.log(2 * np.pi) - np.log(1 - np.tanh(u) ** 2), -1)
+    np.testing.assert_allclose(logp, ref, rtol=1e-4)
+
+
+def test_transitions_bootstrap_time_outs_not_terminations():
+    """Episode 0 terminates after 3 steps, episode 1 times out after 3: its last step has no next state and is
+    left out, so its step 1 bootstraps from step 2's state; with an episodic reward (MinSubDT's) it is terminal."""
+    obs = np.arange(2 * 4, dtype=np.float32).reshape(2, 4, 1)
+    d = Trajectories(observations=obs, actions=np.zeros((2, 4, 1), np.float32), rewards=np.ones((2, 4), np.float32),
+                     lengths=np.array([3, 3], np.int32), terminals=np.array([True, False]))
+    seen = {}
+    for last_done in (None, np.array([1.0, 1.0])):
+        data = sampler_data(d, np.zeros((2, 4)), np.zeros(1, np.float32), np.ones(1, np.float32), last_done=last_done)
+        b = sample_transitions(jax.random.PRNGKey(0), data, 4000)
+        rows = {(int(s), None if dn else int(n), float(dn))  # a terminal's next state is not used
+                for s, n, dn in zip(b.states[:, 0], b.next_states[:, 0], b.done)}
+        seen[last_done is None] = rows
+    # states are 0, 1, 2 (episode 0) and 4, 5, 6 (episode 1): (state, next state, done)
+    assert seen[True] == {(0, 1, 0.0), (1, 2, 0.0), (2, None, 1.0), (4, 5, 0.0), (5, 6, 0.0)}
+    assert seen[False] == seen[True] | {(6, None, 1.0)}
+
+
+@pytest.mark.parametrize("name", AGENTS)
+def test_who_moves_what_and_the_backup_mask(name):
+    """Each loss has gradient only on its own networks; a terminal transition's target ignores the target networks
+    (y = r), a bootstrapped one does not; targets move only by Polyak, TD3+BC's actor only on every second step."""
+    agent = _agent(name)
+    params = agent.init_params(jax.random.PRNGKey(1))
+    rng = jax.random.PRNGKey(2)
+    grads = jax.jit(jax.jacrev(lambda p: agent.loss(p, _batch(), rng)[1]))(params)  # {part: d part / d params}
+    for part, allowed in MOVES[name].items():
+        moved = {k for k, v in grads[part].items() if any(float(jnp.abs(x).max()) > 0 for x in jax.tree.leaves(v))}
+        assert moved == allowed, (part, moved)
+    shifted = dict(params, **{k: jax.tree.map(lambda x: x + 0.5, v) for k, v in params.items() if "target" in k
+                             or (name == "iql" and k == "value")})
+    backup = {"iql": "critic", "td3bc": "critic", "cql": "td"}[name]
+    loss = jax.jit(lambda p, batch: agent.loss(p, batch, rng)[1][backup])
+    for done, same in ((1.0, True), (0.0, False)):
+        a, b = (loss(p, _batch(done=done)) for p in (params, shifted))
+        assert (float(a) == float(b)) == same, (done, float(a), float(b))
+    tx = optimizer_for(agent, None)
+    state = init_state(agent, tx, jax.random.PRNGKey(3))
+    data = sampler_data(*_bandit(lambda a: -jnp.sum(a ** 2, -1), n=64, obs=3, act=2))
+    chunk = make_train_chunk(agent, tx, 8, 1)
+    for step in range(2):
+        new, _ = chunk(jax.tree.map(jnp.copy, state), data)
+        for target in [k for k in params if k.startswith("target_")]:
+            src = target.removeprefix("target_")
+            delayed = name == "td3bc" and step == 0
+            want = state.params[target] if delayed else jax.tree.map(
+                lambda t, o: agent.tau * o + (1 - agent.tau) * t, state.params[target], new.params[src])
+            for x, y in zip(jax.tree.leaves(new.params[target]), jax.tree.leaves(want)):
+                np.testing.assert_allclose(x, y, rtol=1e-6, atol=1e-7)
+        actor_moved = any(not np.array_equal(x, y) for x, y in zip(jax.tree.leaves(new.params["actor"]),
+                                                                  jax.tree.leaves(state.params["actor"])))
+        assert actor_moved == (name != "td3bc" or step == 1)
+        state = new
+
+
+def _bandit(reward, n=2048, obs=2, act=2, low=-0.5, high=0.5, seed=0):
+    """A one-step bandit as a dataset: one state (0), actions uniform in the box [low, high]^act,
+    ``reward(actions)``, each episode one terminal step."""
+    r = np.random.default_rng(seed)
+    a = r.uniform(low, high, (n, 1, act)).astype(np.float32)
+    d = Trajectories(observations=np.zeros((n, 1, obs), np.float32), actions=a,
+                     rewards=np.asarray(reward(a), np.float32), lengths=np.ones(n, np.int32),
+                     terminals=np.ones(n, bool))
+    return d, np.zeros((n, 1)), np.zeros(obs, np.float32), np.ones(obs, np.float32)
+
+
+def _train(agent, data, steps, seed=0):
+    tx = optimizer_for(agent, None)
+    state = init_state(agent, tx, jax.random.PRNGKey(seed))
+    state, losses = make_train_chunk(agent, tx, agent.batch_size, steps)(state, data)
+    assert np.isfinite(np.asarray(losses)).all()
+    return state.params
+
+
+def _act(agent, params, states):
+    inputs = PolicyInputs(params, jnp.zeros(2), jnp.ones(2), 0.0, 1.0, 0.0)
+    return np.asarray(agent.policy(inputs, (), states, 0.0, 0, jax.random.PRNGKey(0))[1])
+
+
+@pytest.mark.parametrize("name", AGENTS)
+def test_one_step_bandit(name):
+    """Reward -10 |a - a*|^2 with a* = (0.3, -0.2) inside the data's box [-0.5, 0.5]^2: BC's action is the data's mean,
+    ~(0, 0), |a - a*|^2 = 0.13. Each agent's action scores better and stays in the box. With a reward that grows out of
+    the box, CQL's Q at actions out of the data's support ends below its Q at the data's actions."""
+    star = np.array([0.3, -0.2], np.float32)
+    d, *rest = _bandit(lambda a: -10 * np.sum((a - star) ** 2, -1))  # x 10: above the SAC actor's entropy bonus
+    kw = dict(ac_hidden=32, ac_layers=2, critic_batch_size=128, actor_lr=2e-3, critic_lr=2e-3, steps=STEPS,
+              iql_expectile=0.9, iql_beta=10.0, cql_alpha=1.0)
+    agent = _agent(name, obs=2, act=2, **kw)
+    params = _train(agent, sampler_data(d, *rest), STEPS)
+    acts = _act(agent, params, jnp.zeros((1, 2)))
+    bc = d.actions[:, 0].mean(0)
+    score = lambda x: -np.sum((x - star) ** 2, -1).mean()  # noqa: E731
+    assert score(acts) > score(bc) + 0.04, (acts, score(acts), score(bc))
+    assert np.abs(acts).max() <= 0.5
+    if name == "cql":
+        d2, *rest = _bandit(lambda a: 10 * a.sum(-1))
+        params = _train(agent, sampler_data(d2, *rest), STEPS)
+        critic = agent.networks[1]
+        s = jnp.asarray(d2.observations[:256, 0])
+        q_data = critic.apply(params["critic"], s, jnp.asarray(d2.actions[:256, 0])).mean()
+        q_out = critic.apply(params["critic"], s, jnp.full((256, 2), 0.95)).mean()
+        assert float(q_out) < float(q_data), (float(q_out), float(q_data))
+
+
+class _Cut(Exception):
+    pass
+
+
+def _cut_at(step):
+    def progress(s, record):
+        if s >= step and "loss" in record:  # the record comes before that chunk's checkpoint: it is not written
+            raise _Cut
+    return progress
+
+
+def test_cli_trains_evaluates_and_resumes_each_critic_agent(tmp_path, small_dataset_path):
+    """``--method iql,minsubdt-iql`` (and td3bc, cql): a run directory like the DT's, evaluated; a run killed
+    after its first chunk (10 of 20 steps) and resumed ends at the uninterrupted run's parameters."""
+    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.train import main, train
+
+    from test_train_cli import SMOKE, _leaves, _params
+
+    for methods in ("iql,minsubdt-iql", "td3bc", "cql"):
+        common = [*SMOKE, "--dataset", small_dataset_path, "--method", methods, "--critic-batch-size", "32",
+                  "--ac-hidden", "32", "--chunk-steps", "10", "--steps", "20"]
+        full, cut = tmp_path / f"{methods}-full", tmp_path / f"{methods}-cut"
+        assert main([*common, "--out", str(full)]) == 0
+        res = json.loads((full / "results.json").read_text())
+        ev = res.get("eval_by_method") or {methods: res["eval"]}
+        assert set(ev) == set(methods.split(",")) and all(np.isfinite(e["normalized_score_mean"]) for e in ev.values())
+        assert json.loads((full / "config.json").read_text())["method"] == methods
+        with pytest.raises(_Cut):
+            train(parse_args([*common, "--out", str(cut), "--eval-episodes", "0"])[0], verbose=False,
+                  progress_fn=_cut_at(20))
+        assert _params(cut)[0] == 10
+        assert main([*common, "--out", str(cut), "--eval-episodes", "0", "--resume"]) == 0
+        (sa, a), (sb, b) = _params(full), _params(cut)
+        assert sa == sb == 20
+        for x, y in zip(_leaves(a), _leaves(b), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
