@@ -24,6 +24,7 @@ import dataclasses
 import glob
 import json
 import os
+import re
 import sys
 import time
 import traceback
@@ -162,8 +163,37 @@ def load_results(preset="cpu", results_root=RESULTS) -> list[dict]:
     return rows
 
 
-def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) -> dict:
-    """Writes table1.md / table1.json (and the cost plots) from the results present; returns the table."""
+def _methods_of(run_dir: str, prefix: str) -> list[str]:
+    """The methods of a sweep's run directory ``<prefix><m1+m2...>-s<a>[-<b>]`` (none if it is not one: e.g.
+    ``walker-medium-replay-...`` under the prefix ``walker-medium-``)."""
+    m = re.fullmatch(re.escape(prefix) + r"(.+)-s\d+(-\d+)?", os.path.basename(run_dir))
+    names = m.group(1).split("+") if m else []
+    return names if names and all(n in ALL_METHODS for n in names) else []
+
+
+def plot_cell_curves(preset: str, runs_root: str, out_root: str) -> dict:
+    """Per env x dataset with training runs on this machine (``runs_root/<preset>/<env>-<dataset>-*``, their
+    ``metrics.jsonl``): their score and loss curves in one figure (:func:`minsubdt_jax.plot.plot_runs`), written to
+    ``out_root/table1_curves/<preset>-<env>-<dataset>.png``; ``{"dataset/env": png path relative to out_root}``."""
+    from minsubdt_jax.plot import plot_runs
+
+    pngs = {}
+    for env in ENVS:
+        for ds in DATASETS:
+            dirs = sorted(d for d in glob.glob(os.path.join(runs_root, preset, f"{env}-{ds}-*"))
+                          if os.path.exists(os.path.join(d, "metrics.jsonl")) and _methods_of(d, f"{env}-{ds}-"))
+            if dirs:
+                rel = os.path.join("table1_curves", f"{preset}-{env}-{ds}.png")
+                os.makedirs(os.path.join(out_root, "table1_curves"), exist_ok=True)
+                plot_runs(dirs, os.path.join(out_root, rel),
+                          labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
+                pngs[f"{ds}/{env}"] = rel
+    return pngs
+
+
+def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, runs_root="runs/table1") -> dict:
+    """Writes table1.md / table1.json (and the cost plots, and the curves of the runs on this machine) from the
+    results present; returns the table."""
     rows = load_results(preset, results_root)
     cells = {}
     for row in rows:
@@ -214,6 +244,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True) 
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, cql=PUBLISHED_CQL[d, e])
                                               for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
+    out["curves"] = plot_cell_curves(preset, runs_root, out_root) if plots else {}
     with open(os.path.join(out_root, "table1.json"), "w") as f:
         json.dump(out, f, indent=2)
     with open(os.path.join(out_root, "table1.md"), "w") as f:
@@ -259,7 +290,7 @@ def main(argv=None) -> int:
         failed = st["failed"]
     if a.action in ("all", "aggregate"):
         name = variant(a.preset, a.costs)
-        out = aggregate(name, out_root=RESULTS if a.costs is None else result_dir(name))
+        out = aggregate(name, out_root=RESULTS if a.costs is None else result_dir(name), runs_root=a.runs_root)
         print(markdown(out))
     return 1 if failed else 0
 

@@ -113,6 +113,12 @@ def markdown(out: dict) -> str:
     lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}" for x in
                                              out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
               for d in DATASETS for e in ENVS]
+    lines += ["", "## Curves", "",
+              "Score and loss against the gradient step of each cell's training runs (`python -m minsubdt_jax.plot`, "
+              "drawn by `aggregate` from the run directories on the machine that trained them), and the "
+              "convergence curves of [curves.md](curves.md).", ""]
+    lines += [f"- {d} {e}: ![curves]({png})" for key, png in sorted(out.get("curves", {}).items())
+              for d, e in [key.split("/")]] or ["- none on the machine that aggregated"]
     lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
               "Not comparable one to one with the table above: other physics, other behaviour policies, other "
               "references, 100k training steps. For orientation only.", "",

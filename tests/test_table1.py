@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-BASE = {"minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc": 30.0}
+BASE = {"minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc": 30.0, "cql": 20.0, "iql": 55.0, "minsubdt-iql": 45.0}
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,8 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     bc0 = json.loads((res_dir / "hopper-medium-bc-s0.json").read_text())
     assert bc0["config"]["method"] == "bc" and bc0["eval"]["normalized_score_mean"] == 30.0
 
-    out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=True)
+    out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=True,
+                           runs_root=str(tmp_path / "runs"))
     cell = out["table"]["medium/hopper"]
     assert cell["minsubdt-learned"]["mean"] == pytest.approx(41.0)
     assert cell["minsubdt-learned"]["std"] == pytest.approx(np.std([0, 1, 2]))
@@ -98,3 +99,40 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     assert len(files) == 7 and not any(f.endswith(".tmp") for f in files)
     assert np.isclose(json.loads((res_dir / "hopper-medium-dt-s1.json").read_text())["eval"]["normalized_score_mean"],
                       61.0)
+
+
+def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp_path):
+    """``--methods cql iql minsubdt-iql``: one program per agent (IQL's two methods together), and the report gains
+    their columns, with the seed's published CQL column beside ours."""
+    calls = []
+
+    def fake_train(cfg, resume=False, verbose=False):
+        calls.append((cfg.method, cfg.seeds))
+        return fake_results(cfg)
+
+    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
+              results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+    table1.run_sweep(methods=("minsubdt", "cql", "iql", "minsubdt-iql"), seeds=(0, 1), **kw)
+    assert sorted(calls) == [("cql", 2), ("iql,minsubdt-iql", 2), ("minsubdt", 2)]
+    out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=False)
+    assert out["table"]["medium/hopper"]["cql"]["n_seeds"] == 2
+    md = (tmp_path / "agg" / "table1.md").read_text()
+    header = next(line for line in md.splitlines() if line.startswith("| dataset | env | dataset's own"))
+    assert header.endswith("| CQL | IQL | MinSubDT-IQL |") and "TD3+BC" not in header
+    assert "| medium | hopper | 56.8 | 55.8 | 67.6 | 63.9 | 58.0 |" in md  # the seed's row, its CQL column last
+
+
+def test_report_draws_each_cells_training_curves(table1, tmp_path):
+    """``aggregate`` plots the run directories of each cell (and only that cell's: walker-medium-replay runs are
+    not walker medium's) with minsubdt_jax.plot, and the report links the figures."""
+    runs = tmp_path / "runs" / "smoke"
+    for name in ("walker-medium-minsubdt+dt-s0-1", "walker-medium-replay-dt-s0", "walker-medium-bc-s0"):
+        (runs / name).mkdir(parents=True)
+        recs = [{"step": 10, "loss": 1.0, "loss_per_seed": [1.0]},
+                {"step": 10, "final": True, "eval_method": ["dt"], "eval_seed": [0], "eval_normalized_score": [40.0],
+                 "eval_min_subdominance": [1.0]}]
+        (runs / name / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(tmp_path / "agg"))
+    assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
+                    "medium-replay/walker": "table1_curves/smoke-walker-medium-replay.png"}
+    assert (tmp_path / "agg" / pngs["medium/walker"]).stat().st_size > 1000
