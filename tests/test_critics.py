@@ -1,4 +1,4 @@
-"""The critic agents (IQL, TD3+BC, CQL) on their shared actor-critic base: losses against hand computations,
+"""The critic agents (IQL, TD3+BC, CQL, BRAC-v) on their shared actor-critic base: losses against hand computations,
 bootstrapping, which network each loss moves, a one-step bandit, and the CLI cut and resumed."""
 
 import dataclasses
@@ -19,11 +19,12 @@ from minsubdt_jax.config import Config
 from minsubdt_jax.data import Transitions, sample_transitions, sampler_data
 from minsubdt_jax.data.dataset import Trajectories
 
-AGENTS = ("iql", "td3bc", "cql")
+AGENTS = ("iql", "td3bc", "cql", "brac")
 # each loss and the networks it may move
 MOVES = {"iql": {"value": {"value"}, "actor": {"actor"}, "critic": {"critic"}},
          "td3bc": {"critic": {"critic"}, "actor": {"actor"}},
-         "cql": {"actor": {"actor"}, "temperature": {"log_alpha"}, "td": {"critic"}, "conservative": {"critic"}}}
+         "cql": {"actor": {"actor"}, "temperature": {"log_alpha"}, "td": {"critic"}, "conservative": {"critic"}},
+         "brac": {"behavior": {"behavior"}, "critic": {"critic"}, "actor": {"actor"}}}
 TINY = dict(ac_hidden=16, ac_layers=1, critic_batch_size=8, steps=100)
 STEPS = 300  # the bandit's gradient steps
 
@@ -71,6 +72,32 @@ def test_losses_by_hand():
     np.testing.assert_allclose(logp, ref, rtol=1e-4)
 
 
+class _Fixed:
+    """A stand-in policy module: ``apply(params, states)`` gives the same Gaussian at every state."""
+
+    def __init__(self, mean, log_std):
+        self.mean, self.log_std = jnp.asarray(mean), jnp.asarray(log_std)
+
+    def apply(self, params, states):
+        shape = (*states.shape[:-1], self.mean.shape[-1])
+        return jnp.broadcast_to(self.mean, shape), jnp.broadcast_to(self.log_std, shape)
+
+
+def test_brac_kl_estimate_against_the_closed_form():
+    """KL is invariant under tanh, so the 4-sample estimate of KL(tanh N1 || tanh N2) averages to the closed form
+    sum log(s2/s1) + (s1^2 + (m1 - m2)^2) / (2 s2^2) - 1/2 of the Gaussians; 0 for pi = pi_b."""
+    from minsubdt_jax.agents.brac.losses import kl_estimate
+
+    m1, l1, m2, l2 = np.array([0.1, -0.3]), np.array([-1.0, -1.5]), np.array([0.3, 0.0]), np.array([-0.7, -1.2])
+    s1, s2 = np.exp(l1), np.exp(l2)
+    closed = np.sum(l2 - l1 + (s1 ** 2 + (m1 - m2) ** 2) / (2 * s2 ** 2) - 0.5)
+    states = jnp.zeros((20000, 3))
+    est = kl_estimate(jax.random.PRNGKey(0), _Fixed(m1, l1), _Fixed(m2, l2), None, None, states, 4)
+    assert float(est.mean()) == pytest.approx(closed, rel=0.02)
+    same = kl_estimate(jax.random.PRNGKey(0), _Fixed(m1, l1), _Fixed(m1, l1), None, None, states[:10], 4)
+    np.testing.assert_allclose(same, 0.0, atol=1e-5)
+
+
 def test_transitions_bootstrap_time_outs_not_terminations():
     """Episode 0 terminates after 3 steps, episode 1 times out after 3: its last step has no next state and is
     left out, so its step 1 bootstraps from step 2's state; with an episodic reward (MinSubDT's) it is terminal."""
@@ -93,7 +120,7 @@ def test_transitions_bootstrap_time_outs_not_terminations():
 def test_who_moves_what_and_the_backup_mask(name):
     """Each loss has gradient only on its own networks; a terminal transition's target ignores the target networks
     (y = r), a bootstrapped one does not; targets move only by Polyak, TD3+BC's actor only on every second step."""
-    agent = _agent(name)
+    agent = _agent(name, pretrain_steps=1)  # BRAC-v: step 0 trains only the behaviour policy
     params = agent.init_params(jax.random.PRNGKey(1))
     rng = jax.random.PRNGKey(2)
     grads = jax.jit(jax.jacrev(lambda p: agent.loss(p, _batch(), rng)[1]))(params)  # {part: d part / d params}
@@ -102,7 +129,7 @@ def test_who_moves_what_and_the_backup_mask(name):
         assert moved == allowed, (part, moved)
     shifted = dict(params, **{k: jax.tree.map(lambda x: x + 0.5, v) for k, v in params.items() if "target" in k
                              or (name == "iql" and k == "value")})
-    backup = {"iql": "critic", "td3bc": "critic", "cql": "td"}[name]
+    backup = {"iql": "critic", "td3bc": "critic", "cql": "td", "brac": "critic"}[name]
     loss = jax.jit(lambda p, batch: agent.loss(p, batch, rng)[1][backup])
     for done, same in ((1.0, True), (0.0, False)):
         a, b = (loss(p, _batch(done=done)) for p in (params, shifted))
@@ -115,15 +142,21 @@ def test_who_moves_what_and_the_backup_mask(name):
         new, _ = chunk(jax.tree.map(jnp.copy, state), data)
         for target in [k for k in params if k.startswith("target_")]:
             src = target.removeprefix("target_")
-            delayed = name == "td3bc" and step == 0
+            delayed = name in ("td3bc", "brac") and step == 0
             want = state.params[target] if delayed else jax.tree.map(
                 lambda t, o: agent.tau * o + (1 - agent.tau) * t, state.params[target], new.params[src])
             for x, y in zip(jax.tree.leaves(new.params[target]), jax.tree.leaves(want)):
                 np.testing.assert_allclose(x, y, rtol=1e-6, atol=1e-7)
-        actor_moved = any(not np.array_equal(x, y) for x, y in zip(jax.tree.leaves(new.params["actor"]),
-                                                                  jax.tree.leaves(state.params["actor"])))
-        assert actor_moved == (name != "td3bc" or step == 1)
+        actor_moved = _moved(new.params["actor"], state.params["actor"])
+        assert actor_moved == (name not in ("td3bc", "brac") or step == 1)
+        if name == "brac":  # the behaviour policy trains in the first stage only
+            assert _moved(new.params["behavior"], state.params["behavior"]) == (step == 0)
+            assert _moved(new.params["critic"], state.params["critic"]) == (step == 1)
         state = new
+
+
+def _moved(a, b):
+    return any(not np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
 
 
 def _bandit(reward, n=2048, obs=2, act=2, low=-0.5, high=0.5, seed=0):
@@ -140,9 +173,13 @@ def _bandit(reward, n=2048, obs=2, act=2, low=-0.5, high=0.5, seed=0):
 def _train(agent, data, steps, seed=0):
     tx = optimizer_for(agent, None)
     state = init_state(agent, tx, jax.random.PRNGKey(seed))
-    state, losses = make_train_chunk(agent, tx, agent.batch_size, steps)(state, data)
-    assert np.isfinite(np.asarray(losses)).all()
+    state, (losses, parts) = make_train_chunk(agent, tx, agent.batch_size, steps)(state, data)
+    assert np.isfinite(np.asarray(losses)).all() and set(parts) == set(MOVES[agent_name(agent)])
     return state.params
+
+
+def agent_name(agent):
+    return {"IQLAgent": "iql", "TD3BCAgent": "td3bc", "CQLAgent": "cql", "BRACAgent": "brac"}[type(agent).__name__]
 
 
 def _act(agent, params, states):
@@ -158,7 +195,7 @@ def test_one_step_bandit(name):
     star = np.array([0.3, -0.2], np.float32)
     d, *rest = _bandit(lambda a: -10 * np.sum((a - star) ** 2, -1))  # x 10: above the SAC actor's entropy bonus
     kw = dict(ac_hidden=32, ac_layers=2, critic_batch_size=128, actor_lr=2e-3, critic_lr=2e-3, steps=STEPS,
-              iql_expectile=0.9, iql_beta=10.0, cql_alpha=1.0)
+              iql_expectile=0.9, iql_beta=10.0, cql_alpha=1.0, pretrain_steps=STEPS // 3)
     agent = _agent(name, obs=2, act=2, **kw)
     params = _train(agent, sampler_data(d, *rest), STEPS)
     acts = _act(agent, params, jnp.zeros((1, 2)))
@@ -195,7 +232,7 @@ def test_cli_trains_evaluates_and_resumes_each_critic_agent(tmp_path, small_data
 
     from test_train_cli import SMOKE, _leaves, _params
 
-    for methods in ("iql,minsubdt-iql", "td3bc", "cql"):
+    for methods in ("iql,minsubdt-iql", "td3bc", "cql", "brac-v"):
         common = [*SMOKE, "--dataset", small_dataset_path, "--method", methods, "--critic-batch-size", "32",
                   "--ac-hidden", "32", "--chunk-steps", "10", "--steps", "20"]
         full, cut = tmp_path / f"{methods}-full", tmp_path / f"{methods}-cut"
@@ -204,6 +241,9 @@ def test_cli_trains_evaluates_and_resumes_each_critic_agent(tmp_path, small_data
         ev = res.get("eval_by_method") or {methods: res["eval"]}
         assert set(ev) == set(methods.split(",")) and all(np.isfinite(e["normalized_score_mean"]) for e in ev.values())
         assert json.loads((full / "config.json").read_text())["method"] == methods
+        first = json.loads((full / "metrics.jsonl").read_text().splitlines()[0])
+        agent = {"brac-v": "brac"}.get(methods.split(",")[0], methods.split(",")[0])
+        assert set(first["loss_parts"]) == set(MOVES[agent])  # each loss, logged per chunk
         with pytest.raises(_Cut):
             train(parse_args([*common, "--out", str(cut), "--eval-episodes", "0"])[0], verbose=False,
                   progress_fn=_cut_at(20))

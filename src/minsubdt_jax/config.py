@@ -44,15 +44,19 @@ class Config:
     critic_batch_size: int = 256  # transitions per gradient step of a critic agent (all three references: 256)
     discount: float = 0.99  # gamma of the critics' backup
     tau: float = 0.005  # Polyak rate of the target networks
-    ac_hidden: int = 256  # hidden width of the actor, critics and value net
+    ac_hidden: int | None = None  # hidden width of the critics, value net and actor; default 256, BRAC-v's critics 300
     ac_layers: int | None = None  # their hidden layers; default IQL and TD3+BC 2, CQL 3 (CORL)
-    actor_lr: float | None = None  # Adam rate of the actor (and CQL's temperature); default 3e-4, CQL 3e-5 (CORL)
-    critic_lr: float = 3e-4  # Adam rate of the critics and IQL's value net
+    # Adam rate of the actor (and CQL's temperature); default 3e-4, CQL 3e-5 (CORL), BRAC-v 3e-5
+    actor_lr: float | None = None
+    critic_lr: float | None = None  # Adam rate of the critics and IQL's value net; default 3e-4, BRAC-v 1e-3
     iql_expectile: float = 0.7  # IQL's expectile tau of the value loss (CORL's hopper medium-expert: 0.5)
     iql_beta: float = 3.0  # IQL's inverse temperature of the advantage weights (CORL's hopper medium-expert: 6)
     td3bc_alpha: float = 2.5  # TD3+BC's alpha: the actor maximises lambda Q with lambda = alpha / mean |Q|
     cql_alpha: float = 10.0  # CQL's conservative weight (CORL's; the CQL paper's README: 5 or 10)
     cql_actions: int = 10  # CQL's sampled actions per kind (uniform, pi(s), pi(s')) in the logsumexp
+    brac_alpha: float = 0.1  # BRAC-v's fixed weight of the KL value penalty (the reference's example command)
+    # steps of a critic agent's first stage: BRAC-v's behaviour policy (default --steps / 5)
+    pretrain_steps: int | None = None
     # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
     learning_rate: float = 1e-4  # AdamW's peak learning rate
     weight_decay: float = 1e-4  # AdamW's weight decay
@@ -164,7 +168,7 @@ def validate(cfg: Config) -> Config:
     positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
                 "episode_length", "learning_rate", "beta", "warmup_steps", "cost_dim",
                 "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic",
-                "critic_batch_size", "tau", "ac_hidden", "critic_lr", "iql_beta", "td3bc_alpha", "cql_actions")
+                "critic_batch_size", "tau", "iql_beta", "td3bc_alpha", "cql_actions")
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
@@ -181,11 +185,15 @@ def validate(cfg: Config) -> Config:
     if cfg.precision != "f32" and agents != {"dt"}:
         raise ValueError(f"--precision {cfg.precision} is for the DT agent; --method {cfg.method} trains the "
                          f"{agents.pop()} agent")
-    for name in ("ac_layers", "actor_lr"):
+    for name in ("ac_hidden", "ac_layers", "actor_lr", "critic_lr"):
         if getattr(cfg, name) is not None and not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
-    if not (0 <= cfg.discount <= 1 and 0 < cfg.iql_expectile < 1 and cfg.cql_alpha >= 0 and cfg.tau <= 1):
-        raise ValueError("need 0 <= --discount <= 1, 0 < --iql-expectile < 1, --cql-alpha >= 0, --tau <= 1")
+    if not (0 <= cfg.discount <= 1 and 0 < cfg.iql_expectile < 1 and cfg.cql_alpha >= 0 and cfg.tau <= 1
+            and cfg.brac_alpha >= 0):
+        raise ValueError("need 0 <= --discount <= 1, 0 < --iql-expectile < 1, --cql-alpha >= 0, --tau <= 1, "
+                         "--brac-alpha >= 0")
+    if cfg.pretrain_steps is not None and not 0 <= cfg.pretrain_steps < cfg.steps:
+        raise ValueError(f"--pretrain-steps must be in [0, --steps), got {cfg.pretrain_steps}")
     if not 0 <= cfg.ema_decay < 1:
         raise ValueError(f"--ema-decay must be in [0, 1) (0: off), got {cfg.ema_decay}")
     if not 0 <= cfg.cost_label_noise < 0.5:

@@ -14,6 +14,8 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``minsubdt-iql``       IQL on MinSubDT's surrogate reward (one reward, ``-min-subdominance``, at the last step)
 ``minsubdt-td3bc``     TD3+BC on the surrogate reward
 ``minsubdt-cql``       CQL on the surrogate reward
+``brac-v``             BRAC-v (Wu, Tucker & Nachum 2019) on the true rewards
+``minsubdt-brac-v``    BRAC-v on the surrogate reward
 =====================  =====================================================================================
 
 The surrogate reward is a trajectory's: it is paid once, at its last step, and nothing follows it, so for the
@@ -104,6 +106,8 @@ METHODS = {m.name: m for m in (
     Method("minsubdt-iql", "MinSubDT-IQL", "iql", "engineered", _surrogate, rtg_scale=None, episodic=True),
     Method("minsubdt-td3bc", "MinSubDT-TD3+BC", "td3bc", "engineered", _surrogate, episodic=True),
     Method("minsubdt-cql", "MinSubDT-CQL", "cql", "engineered", _surrogate, episodic=True),
+    Method("brac-v", "BRAC-v", "brac", "engineered", _true),
+    Method("minsubdt-brac-v", "MinSubDT-BRAC-v", "brac", "engineered", _surrogate, episodic=True),
 )}
 RETURNS_ALIASES = {m.returns_alias: m.name for m in METHODS.values() if m.returns_alias}
 

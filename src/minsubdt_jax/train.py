@@ -79,9 +79,9 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     if resume and decays and os.path.exists(os.path.join(out, "config.json")):
         with open(os.path.join(out, "config.json")) as f:  # the decay ends at --steps: it may not change
             if json.load(f)["steps"] != cfg.steps:
-                what = (f"--lr-schedule {cfg.lr_schedule}" if cfg.lr_schedule != "constant"
-                        else f"{methods[0].agent}'s actor learning rate")
-                raise ValueError(f"--resume: {what} decays to 0 at the run's --steps: resume with the same --steps")
+                what = (f"--lr-schedule {cfg.lr_schedule} decays to 0 at" if cfg.lr_schedule != "constant"
+                        else f"the {methods[0].agent} agent's schedule is fixed by")
+                raise ValueError(f"--resume: {what} the run's --steps: resume with the same --steps")
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES, dataclasses.asdict(Config()))
     batch_size = batch_size_of(methods[0].agent, cfg)
     mesh = make_mesh(cfg.devices, batch_size)  # checked before anything is written
@@ -160,6 +160,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                                              ema_decay=cfg.ema_decay)
             tc = time.time()
             state, losses = chunks[n](state, data)
+            losses, parts = losses if isinstance(losses, tuple) else (losses, {})  # a critic agent's losses by name
             per_seed = np.asarray(gather(losses)).mean(0)  # [S]
             if not np.isfinite(per_seed).all():
                 last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
@@ -168,6 +169,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
             step += n
             # records first, checkpoint last: a resumed run drops the records past its checkpoint and redoes them
             log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
+                 **({"loss_parts": {k: float(np.mean(gather(v))) for k, v in parts.items()}} if parts else {}),
                  "chunk_seconds": time.time() - tc})
             if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
                 rec = eval_record(step, evaluate(eval_params(state), cfg.eval_episodes_periodic))

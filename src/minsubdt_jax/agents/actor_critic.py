@@ -6,7 +6,7 @@ A critic agent is a frozen record (``agents/<name>/agent.py``) with, besides :cl
 
 * ``params``: a dict of networks, e.g. ``{"actor", "critic", "target_critic", "value"}``;
 * ``optimizers``: ``{name: optax transformation}`` for the networks that train (the others are targets);
-* ``loss(params, batch: Transitions, rng) -> (total, aux)``: the agent's losses summed, each with
+* ``loss(params, batch: Transitions, rng, step) -> (total, parts)``: the agent's losses summed, each with
   ``stop_gradient`` on the networks it must not move, so that **one** backward pass gives every network the
   gradient of its own loss (unifloral's single update; cheaper than one pass per loss, as JaxCQL's);
 * ``active(step) -> {name: bool}``: networks updated only on some steps (TD3+BC's delayed actor), else all;
@@ -53,7 +53,8 @@ def per_network_optimizer(optimizers: dict) -> optax.GradientTransformation:
 
 
 def make_ac_step(agent, batch_size: int, mesh=None, ema_decay: float = 0.0):
-    """Pure ``step(state, data) -> (state, loss)`` of a critic agent: sample transitions
+    """Pure ``step(state, data) -> (state, (loss, parts))`` of a critic agent (``parts``: each loss, by name, as
+    ``metrics.jsonl`` logs them per chunk): sample transitions
     (:func:`~minsubdt_jax.data.sample_transitions`), one backward pass through the summed losses, each trained
     network's own optimiser (skipped, state and all, where ``agent.active`` says so: zeroed gradients would still
     move Adam's moments), then the Polyak updates of the targets and the parameters' moving average."""
@@ -62,7 +63,7 @@ def make_ac_step(agent, batch_size: int, mesh=None, ema_decay: float = 0.0):
     def step(state: TrainState, data: SamplerData):
         rng, k_batch, k_loss = jax.random.split(state.rng, 3)
         batch = shard_batch(sample_transitions(k_batch, data, batch_size), mesh)
-        (loss, _), grads = jax.value_and_grad(agent.loss, has_aux=True)(state.params, batch, k_loss)
+        (loss, parts), grads = jax.value_and_grad(agent.loss, has_aux=True)(state.params, batch, k_loss, state.step)
         active = agent.active(state.step)
         params, opt_state = dict(state.params), dict(state.opt_state)
         for name, tx in optimizers.items():
@@ -75,7 +76,8 @@ def make_ac_step(agent, batch_size: int, mesh=None, ema_decay: float = 0.0):
             moved = polyak(params[target], params[source], agent.tau)
             params[target] = moved if on is None else tree_where(on, moved, params[target])
         ema = ema_update(state.ema_params, params, state.step, ema_decay)
-        return TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng, ema_params=ema), loss
+        new = TrainState(step=state.step + 1, params=params, opt_state=opt_state, rng=rng, ema_params=ema)
+        return new, (loss, parts)
 
     return step
 
@@ -133,9 +135,10 @@ class CriticAgentBase:
         return params
 
 
-def critic_fields(cfg, obs_dim: int, act_dim: int, layers: int, actor_lr: float) -> dict:
-    """The :class:`CriticAgentBase` fields from ``cfg``, with the agent's reference ``layers`` and ``actor_lr``
-    where ``--ac-layers`` / ``--actor-lr`` are unset."""
-    return dict(obs_dim=obs_dim, act_dim=act_dim, hidden=(cfg.ac_hidden,) * (cfg.ac_layers or layers),
+def critic_fields(cfg, obs_dim: int, act_dim: int, layers: int, actor_lr: float, hidden: int = 256,
+                  critic_lr: float = 3e-4) -> dict:
+    """The :class:`CriticAgentBase` fields from ``cfg``, with the agent's reference ``layers``, ``hidden``,
+    ``actor_lr`` and ``critic_lr`` where ``--ac-layers``, ``--ac-hidden``, ``--actor-lr``, ``--critic-lr`` are unset."""
+    return dict(obs_dim=obs_dim, act_dim=act_dim, hidden=(cfg.ac_hidden or hidden,) * (cfg.ac_layers or layers),
                 discount=cfg.discount, tau=cfg.tau, batch_size=cfg.critic_batch_size,
-                actor_lr=cfg.actor_lr or actor_lr, critic_lr=cfg.critic_lr)
+                actor_lr=cfg.actor_lr or actor_lr, critic_lr=cfg.critic_lr or critic_lr)

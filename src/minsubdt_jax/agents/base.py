@@ -132,7 +132,8 @@ def make_train_step(agent: Agent, tx, batch_size: int, mesh=None, ema_decay: flo
 
 def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
                      data_axis: int | None = None, ema_decay: float = 0.0):
-    """Jitted ``chunk(state, data) -> (state, losses [n_steps])``: ``n_steps`` train steps in one ``lax.scan``
+    """Jitted ``chunk(state, data) -> (state, losses [n_steps])`` (a critic agent's: ``(losses, {name: [n_steps]})``,
+    its losses by name beside the total): ``n_steps`` train steps in one ``lax.scan``
     (data parallel over ``mesh`` when given: pass ``state`` and ``data`` replicated on it).
 
     With ``seed_axis`` the state has a leading seed axis (:func:`init_seed_states`) and every step is

@@ -80,23 +80,39 @@ class TanhMeanGaussianActor(nn.Module):
 
 class TanhGaussianActor(nn.Module):
     """The SAC/CQL actor (CORL ``TanhGaussianPolicy``): ``states -> (mean, log_std)`` of the pre-tanh Gaussian, with
-    ``log_std = m * head + o`` for trained scalars ``m = 1``, ``o = -1`` at init, clipped to ``[-20, 2]``."""
+    ``log_std = m * head + o`` for trained scalars ``m = 1``, ``o = -1`` at init, clipped to ``[-20, 2]``; with
+    ``log_std_range = (lo, hi)`` instead ``lo + (hi - lo) (tanh(head) + 1) / 2`` (BRAC's policies, ``[-5, 0]``)."""
 
     act_dim: int
     hidden: Sequence[int]
+    log_std_range: tuple | None = None
 
     @nn.compact
     def __call__(self, states):
         out = nn.Dense(2 * self.act_dim)(MLP(self.hidden)(states))
         mean, raw = out[..., :self.act_dim], out[..., self.act_dim:]
+        if self.log_std_range is not None:
+            lo, hi = self.log_std_range
+            return mean, lo + 0.5 * (hi - lo) * (jnp.tanh(raw) + 1.0)
         m = self.param("log_std_multiplier", nn.initializers.ones, ())
         o = self.param("log_std_offset", lambda k, s: -jnp.ones(s), ())
         return mean, jnp.clip(m * raw + o, -20.0, 2.0)
+
+
+def _tanh_correction(u):
+    """``sum log(1 - tanh(u)^2)`` over the action dims, as ``2 (log 2 - u - softplus(-2u))`` (stable)."""
+    return jnp.sum(2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u)), -1)
+
+
+def tanh_gaussian_log_prob(actions, mean, log_std, margin: float = 1e-3):
+    """Log-density ``[...]`` of ``tanh(N(mean, std))`` at ``actions [..., act]``, clipped ``margin`` inside
+    ``[-1, 1]`` first (BRAC's ``clip_eps``; the data's actions may sit on the bounds)."""
+    u = jnp.arctanh(jnp.clip(actions, -1.0 + margin, 1.0 - margin))
+    return gaussian_log_prob(u, mean, log_std) - _tanh_correction(u)
 
 
 def tanh_gaussian_sample(rng, mean, log_std):
     """``(actions [..., act], log_prob [...])``: a reparameterised sample of ``tanh(N(mean, std))`` and its
     log-density, with the tanh's change of variables ``log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u))``."""
     u = mean + jnp.exp(log_std) * jax.random.normal(rng, mean.shape)
-    correction = jnp.sum(2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u)), -1)
-    return jnp.tanh(u), gaussian_log_prob(u, mean, log_std) - correction
+    return jnp.tanh(u), gaussian_log_prob(u, mean, log_std) - _tanh_correction(u)

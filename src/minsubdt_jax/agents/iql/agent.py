@@ -35,7 +35,7 @@ class IQLAgent(CriticAgentBase):
         return {"actor": optax.chain(optax.scale_by_adam(), optax.scale_by_schedule(decay)),
                 "critic": optax.adam(self.critic_lr), "value": optax.adam(self.critic_lr)}
 
-    def loss(self, params, batch, rng):
+    def loss(self, params, batch, rng, step=None):
         parts = iql_losses(self, params, batch)
         return sum(parts.values()), parts
 

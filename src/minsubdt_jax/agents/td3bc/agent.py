@@ -35,7 +35,7 @@ class TD3BCAgent(CriticAgentBase):
     def optimizers(self) -> dict:
         return {"actor": optax.adam(self.actor_lr), "critic": optax.adam(self.critic_lr)}
 
-    def loss(self, params, batch, rng):
+    def loss(self, params, batch, rng, step=None):
         parts = td3bc_losses(self, params, batch, rng)
         return sum(parts.values()), parts
 
