@@ -1,10 +1,11 @@
 """Train-step speed of every agent at its own settings, measured in one run: the DT at the `cpu` and `paper`
-presets (batch 64 windows), BC with an MLP (batch 64), and the critic agents IQL, TD3+BC and CQL at their
-references' settings (batch 256 transitions; IQL and TD3+BC 2 x 256 networks, CQL 3 x 256 with 10 + 10 + 10
-sampled actions).
+presets (batch 64 windows), BC with an MLP (batch 64), and the critic agents IQL, TD3+BC, CQL, BRAC-v and BEAR at
+their references' settings (batch 256 transitions; IQL and TD3+BC 2 x 256 networks, CQL 3 x 256 with 10 + 10 + 10
+sampled actions, BRAC-v 300 x 300 critics and 200 x 200 policies with 4 KL samples, BEAR a 750 x 750 VAE and 10
+target samples). BRAC-v and BEAR are timed in their main stage (after the pretraining or warm-up).
 
-    python benchmarks/bench_agents.py [--agents dt-cpu dt-paper bc-mlp iql td3bc cql] [--steps 50] [--repeats 5]
-                                      [--json benchmarks/results/agents.json]
+    python benchmarks/bench_agents.py [--agents dt-cpu dt-paper bc-mlp iql td3bc cql brac bear] [--steps 50]
+                                      [--repeats 5] [--json benchmarks/results/agents.json]
 
 Each agent's jitted ``lax.scan`` chunk of ``--steps`` steps (the one training runs: sampling, forward, backward,
 updates; one seed) on a synthetic walker-shaped dataset (64 episodes x 1000 steps, 17-d states, 6-d actions).
@@ -36,7 +37,7 @@ from minsubdt_jax.data import sampler_data  # noqa: E402
 
 # name -> (agent, preset whose fields it takes)
 AGENTS = {"dt-cpu": ("dt", "cpu"), "dt-paper": ("dt", "paper"), "bc-mlp": ("mlp", "cpu"), "iql": ("iql", "cpu"),
-          "td3bc": ("td3bc", "cpu"), "cql": ("cql", "cpu")}
+          "td3bc": ("td3bc", "cpu"), "cql": ("cql", "cpu"), "brac": ("brac", "cpu"), "bear": ("bear", "cpu")}
 
 
 def make_chunk(name: str, steps: int, data):
@@ -46,6 +47,7 @@ def make_chunk(name: str, steps: int, data):
     tx = optimizer_for(agent, cfg)
     batch = batch_size_of(agent_name, cfg)
     state = init_state(agent, tx, jax.random.PRNGKey(0))
+    state = state.replace(step=state.step + 10**6 // 2)  # past any pretraining stage or warm-up
     chunk = make_train_chunk(agent, tx, batch, steps)
     t0 = time.perf_counter()
     state, losses = chunk(state, data)

@@ -34,8 +34,8 @@ import numpy as np
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
-from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_CQL, markdown,  # noqa: E402
-                           plot_costs)
+from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
+                           markdown, plot_costs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -241,7 +241,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
     episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
     out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
            "cost_rank_agreement": costs, "data_files": files,
-           "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, cql=PUBLISHED_CQL[d, e])
+           "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, **PUBLISHED_BASELINES[d, e])
                                               for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
     out["curves"] = plot_cell_curves(preset, runs_root, out_root) if plots else {}
@@ -262,8 +262,8 @@ def main(argv=None) -> int:
     p.add_argument("--envs", nargs="+", default=list(ENVS), choices=ENVS)
     p.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=DATASETS)
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=COLUMNS,
-                   help="the seed's DT-family columns by default; the critic agents' (cql: the seed's CQL column, "
-                   "iql, td3bc, minsubdt-iql, ...) are run when named")
+                   help="the seed's DT-family columns by default; the critic agents' (the seed's cql, bear, brac-v; "
+                   "iql, td3bc; minsubdt-iql, ...) are run when named")
     p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     p.add_argument("--runs-root", default="runs/table1", help="training run directories (checkpoints)")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"],

@@ -11,7 +11,8 @@ ENVS = ("halfcheetah", "hopper", "walker")
 DATASETS = ("medium-expert", "medium", "medium-replay")
 METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
 # the critic agents' columns (the seed's CQL among them, and MinSubDT's surrogate reward under IQL): shown once run
-CRITIC_METHODS = ("cql", "iql", "td3bc", "minsubdt-iql", "minsubdt-td3bc", "minsubdt-cql")
+CRITIC_METHODS = ("cql", "bear", "brac-v", "iql", "td3bc", "minsubdt-iql", "minsubdt-td3bc", "minsubdt-cql",
+                  "minsubdt-bear", "minsubdt-brac-v")  # AWR: not built yet
 COLUMNS = METHODS + CRITIC_METHODS
 METHOD_NAMES = {m: ALL_METHODS[m].label for m in COLUMNS}
 
@@ -30,11 +31,21 @@ PUBLISHED = {
     }.items()
 }
 
-# The seed's CQL column (the DT paper's Table 2, from the CQL paper; gym MuJoCo, D4RL v0 data)
-PUBLISHED_CQL = {("medium-expert", "halfcheetah"): 62.4, ("medium-expert", "hopper"): 111.0,
-                 ("medium-expert", "walker"): 98.7, ("medium", "halfcheetah"): 44.4, ("medium", "hopper"): 58.0,
-                 ("medium", "walker"): 79.2, ("medium-replay", "halfcheetah"): 46.2, ("medium-replay", "hopper"): 48.6,
-                 ("medium-replay", "walker"): 26.7}
+# The seed's other columns (the DT paper's Table 2: CQL from the CQL paper, BEAR, BRAC-v and AWR from the D4RL
+# paper; gym MuJoCo, D4RL v0 data): CQL, BEAR, BRAC-v, AWR per (dataset, env)
+PUBLISHED_BASELINES = {
+    (d, e): dict(zip(("cql", "bear", "brac-v", "awr"), v)) for (d, e), v in {
+        ("medium-expert", "halfcheetah"): (62.4, 53.4, 41.9, 52.7),
+        ("medium-expert", "hopper"): (111.0, 96.3, 0.8, 27.1),
+        ("medium-expert", "walker"): (98.7, 40.1, 81.6, 53.8),
+        ("medium", "halfcheetah"): (44.4, 41.7, 46.3, 37.4),
+        ("medium", "hopper"): (58.0, 52.1, 31.1, 35.9),
+        ("medium", "walker"): (79.2, 59.1, 81.1, 17.4),
+        ("medium-replay", "halfcheetah"): (46.2, 38.6, 47.7, 40.3),
+        ("medium-replay", "hopper"): (48.6, 33.7, 0.6, 28.4),
+        ("medium-replay", "walker"): (26.7, 19.2, 0.9, 15.5),
+    }.items()
+}
 
 
 def columns(table: dict) -> tuple:
@@ -122,10 +133,11 @@ def markdown(out: dict) -> str:
     lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
               "Not comparable one to one with the table above: other physics, other behaviour policies, other "
               "references, 100k training steps. For orientation only.", "",
-              "| dataset | env | " + " | ".join(METHOD_NAMES[m] for m in METHODS) + " | CQL |",
-              "|---|---|" + "---|" * (len(METHODS) + 1)]
+              "| dataset | env | " + " | ".join(METHOD_NAMES[m] for m in METHODS) + " | CQL | BEAR | BRAC-v | AWR |",
+              "|---|---|" + "---|" * (len(METHODS) + 4)]
     for (d, e), v in PUBLISHED.items():
-        lines.append(f"| {d} | {e} | " + " | ".join(f"{v[m]:.1f}" for m in METHODS) + f" | {PUBLISHED_CQL[d, e]:.1f} |")
+        lines.append(f"| {d} | {e} | " + " | ".join(f"{x:.1f}" for x in [v[m] for m in METHODS]
+                                                     + list(PUBLISHED_BASELINES[d, e].values())) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -19,18 +19,20 @@ from minsubdt_jax.config import Config
 from minsubdt_jax.data import Transitions, sample_transitions, sampler_data
 from minsubdt_jax.data.dataset import Trajectories
 
-AGENTS = ("iql", "td3bc", "cql", "brac")
+AGENTS = ("iql", "td3bc", "cql", "brac", "bear")
 # each loss and the networks it may move
 MOVES = {"iql": {"value": {"value"}, "actor": {"actor"}, "critic": {"critic"}},
          "td3bc": {"critic": {"critic"}, "actor": {"actor"}},
          "cql": {"actor": {"actor"}, "temperature": {"log_alpha"}, "td": {"critic"}, "conservative": {"critic"}},
-         "brac": {"behavior": {"behavior"}, "critic": {"critic"}, "actor": {"actor"}}}
+         "brac": {"behavior": {"behavior"}, "critic": {"critic"}, "actor": {"actor"}},
+         "bear": {"vae": {"vae"}, "critic": {"critic"}, "actor": {"actor"}, "dual": {"log_alpha"}}}
 TINY = dict(ac_hidden=16, ac_layers=1, critic_batch_size=8, steps=100)
 STEPS = 300  # the bandit's gradient steps
 
 
 def _agent(name, obs=3, act=2, **kw):
-    return make_agent(name, dataclasses.replace(Config(), **{**TINY, **kw}), obs, act, 10)
+    agent = make_agent(name, dataclasses.replace(Config(), **{**TINY, **kw}), obs, act, 10)
+    return dataclasses.replace(agent, vae_hidden=(32, 32)) if name == "bear" else agent  # BEAR's VAE: 750 x 750
 
 
 def _batch(obs=3, act=2, b=8, done=0.0, seed=0):
@@ -83,6 +85,23 @@ class _Fixed:
         return jnp.broadcast_to(self.mean, shape), jnp.broadcast_to(self.log_std, shape)
 
 
+def test_bear_mmd_by_hand():
+    """MMD with both kernels (2 sigma in the exponent) on 2 + 1 samples at one state, by hand; MMD(X, X) = 1e-3."""
+    from minsubdt_jax.agents.bear.losses import mmd
+
+    x, y = jnp.array([[[0.0, 0.0]], [[1.0, 2.0]]]), jnp.array([[[2.0, 0.0]]])  # [n, B=1, d]
+    for kernel, dist in (("laplacian", lambda a, b: np.abs(a - b).sum()), ("gaussian", lambda a, b: ((a - b) ** 2).sum())):
+        k = lambda a, b: np.exp(-dist(np.array(a), np.array(b)) / (2 * 20.0))  # noqa: E731
+        xs, ys = [[0, 0], [1, 2]], [[2, 0]]
+        kxx = np.mean([k(a, b) for a in xs for b in xs])
+        kxy = np.mean([k(a, b) for a in xs for b in ys])
+        want = np.sqrt(kxx + 1.0 - 2 * kxy + 1e-6)
+        assert float(mmd(x, y, kernel, 20.0)[0]) == pytest.approx(want, rel=1e-5), kernel
+        assert float(mmd(x, x, kernel, 20.0)[0]) == pytest.approx(1e-3, rel=1e-3)
+    far = jnp.array([[[10.0, 10.0]]])
+    assert float(mmd(x, far, "laplacian", 20.0)[0]) > float(mmd(x, y, "laplacian", 20.0)[0])
+
+
 def test_brac_kl_estimate_against_the_closed_form():
     """KL is invariant under tanh, so the 4-sample estimate of KL(tanh N1 || tanh N2) averages to the closed form
     sum log(s2/s1) + (s1^2 + (m1 - m2)^2) / (2 s2^2) - 1/2 of the Gaussians; 0 for pi = pi_b."""
@@ -129,7 +148,7 @@ def test_who_moves_what_and_the_backup_mask(name):
         assert moved == allowed, (part, moved)
     shifted = dict(params, **{k: jax.tree.map(lambda x: x + 0.5, v) for k, v in params.items() if "target" in k
                              or (name == "iql" and k == "value")})
-    backup = {"iql": "critic", "td3bc": "critic", "cql": "td", "brac": "critic"}[name]
+    backup = {"iql": "critic", "td3bc": "critic", "cql": "td", "brac": "critic", "bear": "critic"}[name]
     loss = jax.jit(lambda p, batch: agent.loss(p, batch, rng)[1][backup])
     for done, same in ((1.0, True), (0.0, False)):
         a, b = (loss(p, _batch(done=done)) for p in (params, shifted))
@@ -179,7 +198,8 @@ def _train(agent, data, steps, seed=0):
 
 
 def agent_name(agent):
-    return {"IQLAgent": "iql", "TD3BCAgent": "td3bc", "CQLAgent": "cql", "BRACAgent": "brac"}[type(agent).__name__]
+    return {"IQLAgent": "iql", "TD3BCAgent": "td3bc", "CQLAgent": "cql", "BRACAgent": "brac",
+            "BEARAgent": "bear"}[type(agent).__name__]
 
 
 def _act(agent, params, states):
@@ -232,7 +252,7 @@ def test_cli_trains_evaluates_and_resumes_each_critic_agent(tmp_path, small_data
 
     from test_train_cli import SMOKE, _leaves, _params
 
-    for methods in ("iql,minsubdt-iql", "td3bc", "cql", "brac-v"):
+    for methods in ("iql,minsubdt-iql", "td3bc", "cql", "brac-v", "bear"):
         common = [*SMOKE, "--dataset", small_dataset_path, "--method", methods, "--critic-batch-size", "32",
                   "--ac-hidden", "32", "--chunk-steps", "10", "--steps", "20"]
         full, cut = tmp_path / f"{methods}-full", tmp_path / f"{methods}-cut"

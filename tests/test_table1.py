@@ -103,7 +103,7 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
 
 def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp_path):
     """``--methods cql iql minsubdt-iql``: one program per agent (IQL's two methods together), and the report gains
-    their columns, with the seed's published CQL column beside ours."""
+    their columns, with the seed's published CQL, BEAR, BRAC-v and AWR columns beside ours."""
     calls = []
 
     def fake_train(cfg, resume=False, verbose=False):
@@ -119,7 +119,7 @@ def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp
     md = (tmp_path / "agg" / "table1.md").read_text()
     header = next(line for line in md.splitlines() if line.startswith("| dataset | env | dataset's own"))
     assert header.endswith("| CQL | IQL | MinSubDT-IQL |") and "TD3+BC" not in header
-    assert "| medium | hopper | 56.8 | 55.8 | 67.6 | 63.9 | 58.0 |" in md  # the seed's row, its CQL column last
+    assert "| medium | hopper | 56.8 | 55.8 | 67.6 | 63.9 | 58.0 | 52.1 | 31.1 | 35.9 |" in md  # the seed's row
 
 
 def test_report_draws_each_cells_training_curves(table1, tmp_path):

@@ -55,7 +55,8 @@ class Config:
     cql_alpha: float = 10.0  # CQL's conservative weight (CORL's; the CQL paper's README: 5 or 10)
     cql_actions: int = 10  # CQL's sampled actions per kind (uniform, pi(s), pi(s')) in the logsumexp
     brac_alpha: float = 0.1  # BRAC-v's fixed weight of the KL value penalty (the reference's example command)
-    # steps of a critic agent's first stage: BRAC-v's behaviour policy (default --steps / 5)
+    # steps of a critic agent's first stage: BRAC-v's behaviour policy (default --steps / 5), BEAR's MMD-only
+    # warm-up (default --steps / 25: the reference's 40k of 1M)
     pretrain_steps: int | None = None
     # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
     learning_rate: float = 1e-4  # AdamW's peak learning rate

@@ -16,6 +16,8 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``minsubdt-cql``       CQL on the surrogate reward
 ``brac-v``             BRAC-v (Wu, Tucker & Nachum 2019) on the true rewards
 ``minsubdt-brac-v``    BRAC-v on the surrogate reward
+``bear``               BEAR (Kumar et al. 2019) on the true rewards
+``minsubdt-bear``      BEAR on the surrogate reward
 =====================  =====================================================================================
 
 The surrogate reward is a trajectory's: it is paid once, at its last step, and nothing follows it, so for the
@@ -108,6 +110,8 @@ METHODS = {m.name: m for m in (
     Method("minsubdt-cql", "MinSubDT-CQL", "cql", "engineered", _surrogate, episodic=True),
     Method("brac-v", "BRAC-v", "brac", "engineered", _true),
     Method("minsubdt-brac-v", "MinSubDT-BRAC-v", "brac", "engineered", _surrogate, episodic=True),
+    Method("bear", "BEAR", "bear", "engineered", _true),
+    Method("minsubdt-bear", "MinSubDT-BEAR", "bear", "engineered", _surrogate, episodic=True),
 )}
 RETURNS_ALIASES = {m.returns_alias: m.name for m in METHODS.values() if m.returns_alias}
 

@@ -10,6 +10,7 @@ A critic agent is a frozen record (``agents/<name>/agent.py``) with, besides :cl
   ``stop_gradient`` on the networks it must not move, so that **one** backward pass gives every network the
   gradient of its own loss (unifloral's single update; cheaper than one pass per loss, as JaxCQL's);
 * ``active(step) -> {name: bool}``: networks updated only on some steps (TD3+BC's delayed actor), else all;
+* ``constrain(params)``: a projection after each update (BEAR clamps its dual), else the identity;
 * ``targets(step) -> [(target, source, on)]``: the Polyak updates ``target <- tau source + (1 - tau) target`` made
   after the gradient step (``on``: a traced bool, or None for every step).
 
@@ -72,6 +73,7 @@ def make_ac_step(agent, batch_size: int, mesh=None, ema_decay: float = 0.0):
             on = active.get(name)
             params[name] = new if on is None else tree_where(on, new, state.params[name])
             opt_state[name] = new_opt if on is None else tree_where(on, new_opt, state.opt_state[name])
+        params = agent.constrain(params)
         for target, source, on in agent.targets(state.step):
             moved = polyak(params[target], params[source], agent.tau)
             params[target] = moved if on is None else tree_where(on, moved, params[target])
@@ -122,6 +124,10 @@ class CriticAgentBase:
 
     def active(self, step) -> dict:
         return {}
+
+    def constrain(self, params):
+        """The parameters after an update, projected where the agent bounds them (BEAR's log alpha)."""
+        return params
 
     def _init(self, key, actor, critic, extra=()):
         """``{"actor", "critic", "target_critic"}`` (the target a copy of the critic) and ``extra``'s
