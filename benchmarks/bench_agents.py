@@ -2,7 +2,8 @@
 presets (batch 64 windows), BC with an MLP (batch 64), and the critic agents IQL, TD3+BC, CQL, BRAC-v and BEAR at
 their references' settings (batch 256 transitions; IQL and TD3+BC 2 x 256 networks, CQL 3 x 256 with 10 + 10 + 10
 sampled actions, BRAC-v 300 x 300 critics and 200 x 200 policies with 4 KL samples, BEAR a 750 x 750 VAE and 10
-target samples). BRAC-v and BEAR are timed in their main stage (after the pretraining or warm-up).
+target samples, AWR 128 x 64 nets). BRAC-v and BEAR are timed in their main stage (after the pretraining or warm-up);
+AWR by its 1200-step iteration (the lambda-returns of the 64k stored states, 200 value and 1000 policy steps).
 
     python benchmarks/bench_agents.py [--agents dt-cpu dt-paper bc-mlp iql td3bc cql brac bear] [--steps 50]
                                       [--repeats 5] [--json benchmarks/results/agents.json]
@@ -37,11 +38,14 @@ from minsubdt_jax.data import sampler_data  # noqa: E402
 
 # name -> (agent, preset whose fields it takes)
 AGENTS = {"dt-cpu": ("dt", "cpu"), "dt-paper": ("dt", "paper"), "bc-mlp": ("mlp", "cpu"), "iql": ("iql", "cpu"),
-          "td3bc": ("td3bc", "cpu"), "cql": ("cql", "cpu"), "brac": ("brac", "cpu"), "bear": ("bear", "cpu")}
+          "td3bc": ("td3bc", "cpu"), "cql": ("cql", "cpu"), "brac": ("brac", "cpu"), "bear": ("bear", "cpu"),
+          "awr": ("awr", "cpu")}
+AWR_ITERATION = 1200  # AWR's chunk is one iteration (lambda-returns of the dataset, value and policy steps)
 
 
 def make_chunk(name: str, steps: int, data):
     agent_name, preset = AGENTS[name]
+    steps = AWR_ITERATION if agent_name == "awr" else steps
     cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0, steps=1_000_000)
     agent = make_agent(agent_name, cfg, 17, 6, 1000)
     tx = optimizer_for(agent, cfg)
@@ -58,7 +62,7 @@ def make_chunk(name: str, steps: int, data):
         holder["state"], losses = chunk(holder["state"], data)
         jax.block_until_ready(losses)
 
-    return run, time.perf_counter() - t0, batch
+    return run, time.perf_counter() - t0, batch, steps
 
 
 def main(argv=None) -> int:
@@ -74,10 +78,10 @@ def main(argv=None) -> int:
     runs = {n: make_chunk(n, a.steps, data) for n in a.agents}
     times = {n: [] for n in a.agents}
     for _ in range(a.repeats):
-        for n, (run, _, _) in runs.items():
+        for n, (run, _, _, steps) in runs.items():
             t0 = time.perf_counter()
             run()
-            times[n].append((time.perf_counter() - t0) / a.steps)
+            times[n].append((time.perf_counter() - t0) / steps)
     ref = times.get("dt-cpu")
     rows = []
     for n in a.agents:

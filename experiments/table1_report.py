@@ -11,8 +11,8 @@ ENVS = ("halfcheetah", "hopper", "walker")
 DATASETS = ("medium-expert", "medium", "medium-replay")
 METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
 # the critic agents' columns (the seed's CQL among them, and MinSubDT's surrogate reward under IQL): shown once run
-CRITIC_METHODS = ("cql", "bear", "brac-v", "iql", "td3bc", "minsubdt-iql", "minsubdt-td3bc", "minsubdt-cql",
-                  "minsubdt-bear", "minsubdt-brac-v")  # AWR: not built yet
+CRITIC_METHODS = ("cql", "bear", "brac-v", "awr", "iql", "td3bc", "minsubdt-iql", "minsubdt-td3bc", "minsubdt-cql",
+                  "minsubdt-bear", "minsubdt-brac-v", "minsubdt-awr")
 COLUMNS = METHODS + CRITIC_METHODS
 METHOD_NAMES = {m: ALL_METHODS[m].label for m in COLUMNS}
 

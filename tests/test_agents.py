@@ -25,7 +25,7 @@ def test_every_method_names_a_registered_agent_and_returns_aliases_map_to_method
     assert parse_args(["--returns", "true"])[0].method == "dt"
     assert parse_args(["--method", "bc-mlp"])[0].method == "bc-mlp"
     with pytest.raises(ValueError, match="--method must be one of"):
-        get_method("bear")
+        get_method("no-such-method")
 
 
 def test_mlp_agent_learns_a_state_to_action_map():

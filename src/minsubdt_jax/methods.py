@@ -18,6 +18,8 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``minsubdt-brac-v``    BRAC-v on the surrogate reward
 ``bear``               BEAR (Kumar et al. 2019) on the true rewards
 ``minsubdt-bear``      BEAR on the surrogate reward
+``awr``                AWR (Peng et al. 2019), offline, on the true rewards
+``minsubdt-awr``       AWR on the surrogate reward
 =====================  =====================================================================================
 
 The surrogate reward is a trajectory's: it is paid once, at its last step, and nothing follows it, so for the
@@ -112,6 +114,8 @@ METHODS = {m.name: m for m in (
     Method("minsubdt-brac-v", "MinSubDT-BRAC-v", "brac", "engineered", _surrogate, episodic=True),
     Method("bear", "BEAR", "bear", "engineered", _true),
     Method("minsubdt-bear", "MinSubDT-BEAR", "bear", "engineered", _surrogate, episodic=True),
+    Method("awr", "AWR", "awr", "engineered", _true),
+    Method("minsubdt-awr", "MinSubDT-AWR", "awr", "engineered", _surrogate, episodic=True),
 )}
 RETURNS_ALIASES = {m.returns_alias: m.name for m in METHODS.values() if m.returns_alias}
 

@@ -1,12 +1,13 @@
 """Agents, one folder each (brax's ``training/agents`` layering): ``dt`` (the Decision Transformer that MinSubDT,
 DT and DT-architecture BC train), ``mlp`` (behaviour cloning with an MLP), and the critic agents ``iql``, ``td3bc``
-``cql``, ``brac`` (BRAC-v) and ``bear`` on one actor-critic base (:mod:`~minsubdt_jax.agents.actor_critic`, networks in
+``cql``, ``brac`` (BRAC-v), ``bear`` and ``awr`` on one actor-critic base (:mod:`~minsubdt_jax.agents.actor_critic`, networks in
 :mod:`~minsubdt_jax.agents.critic_networks`). Shared pieces are in
 :mod:`minsubdt_jax.agents.base`; a new agent is a folder whose ``make_*_agent(cfg, obs_dim, act_dim,
 max_timestep)`` returns a record implementing :class:`~minsubdt_jax.agents.base.Agent`, registered below."""
 
 from __future__ import annotations
 
+from .awr.agent import make_awr_agent
 from .bear.agent import make_bear_agent
 from .brac.agent import make_brac_agent
 from .cql.agent import make_cql_agent
@@ -16,8 +17,9 @@ from .mlp.agent import make_mlp_agent
 from .td3bc.agent import make_td3bc_agent
 
 AGENTS = {"dt": make_dt_agent, "mlp": make_mlp_agent, "iql": make_iql_agent, "td3bc": make_td3bc_agent,
-          "cql": make_cql_agent, "brac": make_brac_agent, "bear": make_bear_agent}
-CRITIC_AGENTS = ("iql", "td3bc", "cql", "brac", "bear")  # train on transitions, --critic-batch-size per step
+          "cql": make_cql_agent, "brac": make_brac_agent, "bear": make_bear_agent,
+          "awr": make_awr_agent}
+CRITIC_AGENTS = ("iql", "td3bc", "cql", "brac", "bear", "awr")  # train on transitions, --critic-batch-size per step
 # a schedule tied to --steps (IQL's actor rate, BRAC-v's pretraining, BEAR's warm-up): a resumed run keeps its --steps
 FIXED_STEPS = ("iql", "brac", "bear")
 

@@ -140,6 +140,8 @@ def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None,
     ``vmap``-ed over it: S independent models train in one program, ``losses [n_steps, S]``. ``data_axis``
     0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one. A critic agent (one with
     ``make_step``) steps with its own, :func:`~minsubdt_jax.agents.actor_critic.make_ac_step` on transitions."""
+    if hasattr(agent, "make_chunk"):  # an agent whose chunk is not a scan of one step (AWR's iteration)
+        return agent.make_chunk(n_steps, seed_axis, data_axis, ema_decay)
     if hasattr(agent, "make_step"):
         step = agent.make_step(batch_size, mesh, ema_decay)
     else:
