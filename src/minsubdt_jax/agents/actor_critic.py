@@ -6,7 +6,7 @@ A critic agent is a frozen record (``agents/<name>/agent.py``) with, besides :cl
 
 * ``params``: a dict of networks, e.g. ``{"actor", "critic", "target_critic", "value"}``;
 * ``optimizers``: ``{name: optax transformation}`` for the networks that train (the others are targets);
-* ``loss(params, batch: Transitions, rng, step) -> (total, parts)``: the agent's losses summed, each with
+* ``losses(params, batch: Transitions, rng, step) -> {name: loss}`` (the base's ``loss`` sums them), each with
   ``stop_gradient`` on the networks it must not move, so that **one** backward pass gives every network the
   gradient of its own loss (unifloral's single update; cheaper than one pass per loss, as JaxCQL's);
 * ``active(step) -> {name: bool}``: networks updated only on some steps (TD3+BC's delayed actor), else all;
@@ -121,6 +121,15 @@ class CriticAgentBase:
 
     def make_step(self, batch_size: int, mesh=None, ema_decay: float = 0.0):
         return make_ac_step(self, batch_size, mesh, ema_decay)
+
+    def loss(self, params, batch, rng, step=None):
+        """``(total, parts)``: the agent's ``losses(params, batch, rng, step)`` (a dict) and their sum."""
+        parts = self.losses(params, batch, rng, step)
+        return sum(parts.values()), parts
+
+    def targets(self, step):
+        """The Polyak pairs: by default the critics' target, every step."""
+        return [("target_critic", "critic", None)]
 
     def active(self, step) -> dict:
         return {}

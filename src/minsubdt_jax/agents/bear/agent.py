@@ -54,16 +54,12 @@ class BEARAgent(CriticAgentBase):
         return {"vae": optax.adam(self.vae_lr), "actor": optax.adam(self.actor_lr),
                 "critic": optax.adam(self.critic_lr), "log_alpha": optax.adam(self.dual_lr)}
 
-    def loss(self, params, batch, rng, step=None):
+    def losses(self, params, batch, rng, step=None):
         q_on = 1.0 if step is None else (step >= self.warmup).astype(jnp.float32)
-        parts = bear_losses(self, params, batch, rng, q_on)
-        return sum(parts.values()), parts
+        return bear_losses(self, params, batch, rng, q_on)
 
     def constrain(self, params):
         return dict(params, log_alpha=jnp.clip(params["log_alpha"], -5.0, 10.0))
-
-    def targets(self, step):
-        return [("target_critic", "critic", None)]
 
     @property
     def policy(self):

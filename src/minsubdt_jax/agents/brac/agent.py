@@ -51,10 +51,9 @@ class BRACAgent(CriticAgentBase):
         return {"behavior": optax.adam(self.behavior_lr), "actor": optax.adam(self.actor_lr),
                 "critic": optax.adam(self.critic_lr)}
 
-    def loss(self, params, batch, rng, step=None):
+    def losses(self, params, batch, rng, step=None):
         q_on = 1.0 if step is None else (step >= self.pretrain_steps + self.warm_start).astype(jnp.float32)
-        parts = brac_losses(self, params, batch, rng, q_on)
-        return sum(parts.values()), parts
+        return brac_losses(self, params, batch, rng, q_on)
 
     def active(self, step) -> dict:
         pre = step < self.pretrain_steps

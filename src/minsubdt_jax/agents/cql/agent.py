@@ -35,12 +35,8 @@ class CQLAgent(CriticAgentBase):
         return {"actor": optax.adam(self.actor_lr), "critic": optax.adam(self.critic_lr),
                 "log_alpha": optax.adam(self.actor_lr)}
 
-    def loss(self, params, batch, rng, step=None):
-        parts = cql_losses(self, params, batch, rng)
-        return sum(parts.values()), parts
-
-    def targets(self, step):
-        return [("target_critic", "critic", None)]
+    def losses(self, params, batch, rng, step=None):
+        return cql_losses(self, params, batch, rng)
 
     @property
     def policy(self):

@@ -35,12 +35,8 @@ class IQLAgent(CriticAgentBase):
         return {"actor": optax.chain(optax.scale_by_adam(), optax.scale_by_schedule(decay)),
                 "critic": optax.adam(self.critic_lr), "value": optax.adam(self.critic_lr)}
 
-    def loss(self, params, batch, rng, step=None):
-        parts = iql_losses(self, params, batch)
-        return sum(parts.values()), parts
-
-    def targets(self, step):
-        return [("target_critic", "critic", None)]
+    def losses(self, params, batch, rng, step=None):
+        return iql_losses(self, params, batch)
 
     @property
     def policy(self):

@@ -35,9 +35,8 @@ class TD3BCAgent(CriticAgentBase):
     def optimizers(self) -> dict:
         return {"actor": optax.adam(self.actor_lr), "critic": optax.adam(self.critic_lr)}
 
-    def loss(self, params, batch, rng, step=None):
-        parts = td3bc_losses(self, params, batch, rng)
-        return sum(parts.values()), parts
+    def losses(self, params, batch, rng, step=None):
+        return td3bc_losses(self, params, batch, rng)
 
     def actor_step(self, step):
         """The reference counts its iterations from 1 and updates the actor when the count divides by 2."""
