@@ -67,9 +67,10 @@ def report(rows: list[dict]) -> str:
              "`gamma^(steps to the end)` of it to an earlier step; the critics see no time in their state, so for "
              "a time-out they cannot tell how far the end is.", "",
              "| dataset | file (sha256) | episodes | terminated | mean length | transitions within "
-             f"{rows[0]['horizon_10pct']} steps of the end (gamma^k >= 0.1) | mean gamma^(steps to end) | median at the "
-             "first step | |value at the first step| / |surrogate return| | Spearman(value at start, surrogate return) "
-             "| same for the true reward's value | demos tied at -K beta |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"{rows[0]['horizon_10pct']} steps of the end (gamma^k >= 0.1) | mean gamma^(steps to end) | median "
+             "at the first step | |value at the first step| / |surrogate return| | Spearman(value at start, "
+             "surrogate return) | same for the true reward's value | demos tied at -K beta |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['env']} {r['dataset']} | {r['file']} ({r['sha256'][:12]}) | {r['episodes']} | "
                      f"{100 * r['terminated_share']:.0f} % | {r['length_mean']:.0f} | "

@@ -1,5 +1,5 @@
-"""The critic agents (IQL, TD3+BC, CQL, BRAC-v, BEAR, AWR) on their shared actor-critic base: losses against hand computations,
-bootstrapping, which network each loss moves, a one-step bandit, and the CLI cut and resumed."""
+"""The critic agents (IQL, TD3+BC, CQL, BRAC-v, BEAR, AWR) on their shared actor-critic base: losses against
+hand computations, bootstrapping, which network each loss moves, a one-step bandit, and the CLI cut and resumed."""
 
 import dataclasses
 import json
@@ -91,7 +91,8 @@ def test_bear_mmd_by_hand():
     from minsubdt_jax.agents.bear.losses import mmd
 
     x, y = jnp.array([[[0.0, 0.0]], [[1.0, 2.0]]]), jnp.array([[[2.0, 0.0]]])  # [n, B=1, d]
-    for kernel, dist in (("laplacian", lambda a, b: np.abs(a - b).sum()), ("gaussian", lambda a, b: ((a - b) ** 2).sum())):
+    for kernel, dist in (("laplacian", lambda a, b: np.abs(a - b).sum()),
+                         ("gaussian", lambda a, b: ((a - b) ** 2).sum())):
         k = lambda a, b: np.exp(-dist(np.array(a), np.array(b)) / (2 * 20.0))  # noqa: E731
         xs, ys = [[0, 0], [1, 2]], [[2, 0]]
         kxx = np.mean([k(a, b) for a in xs for b in xs])

@@ -1,7 +1,7 @@
 """Agents, one folder each (brax's ``training/agents`` layering): ``dt`` (the Decision Transformer that MinSubDT,
-DT and DT-architecture BC train), ``mlp`` (behaviour cloning with an MLP), and the critic agents ``iql``, ``td3bc``
-``cql``, ``brac`` (BRAC-v), ``bear`` and ``awr`` on one actor-critic base (:mod:`~minsubdt_jax.agents.actor_critic`, networks in
-:mod:`~minsubdt_jax.agents.critic_networks`). Shared pieces are in
+DT and DT-architecture BC train), ``mlp`` (behaviour cloning with an MLP), and the critic agents ``iql``, ``td3bc``,
+``cql``, ``brac`` (BRAC-v), ``bear`` and ``awr`` on one actor-critic base (:mod:`~minsubdt_jax.agents.actor_critic`,
+networks in :mod:`~minsubdt_jax.agents.critic_networks`). Shared pieces are in
 :mod:`minsubdt_jax.agents.base`; a new agent is a folder whose ``make_*_agent(cfg, obs_dim, act_dim,
 max_timestep)`` returns a record implementing :class:`~minsubdt_jax.agents.base.Agent`, registered below."""
 
