@@ -29,7 +29,8 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-RESULTS = os.path.join(HERE, "results", "curves")
+sys.path.insert(0, HERE)
+from curves_report import RESULTS, plot, report  # noqa: E402
 DEFAULT_METHODS = "minsubdt,dt"
 MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT and optimiser it takes
 
@@ -117,125 +118,6 @@ def collect(run_dir: str, res: dict) -> dict:
                                                                         "normalized_score_mean")},
             "physics": res.get("physics"), "references": res.get("references"),
             "steps": [r["step"] for r in evals], "episodes": [r["eval_episodes"] for r in evals], "models": models}
-
-
-def noise(curve: dict) -> list[dict]:
-    """Per method and evaluation step: the mean over seeds, the std between seed means, the mean standard error of
-    one seed's mean (episode noise), and the seeds n (at this step's episodes) for 2 std / sqrt(n) <= 3 points."""
-    rows = []
-    for method in dict.fromkeys(m["method"] for m in curve["models"]):
-        ms = [m for m in curve["models"] if m["method"] == method]
-        for j, step in enumerate(curve["steps"]):
-            means = np.array([m["mean"][j] for m in ms])
-            if not np.isfinite(means).all():
-                continue
-            se = np.array([m["std"][j] for m in ms]) / np.sqrt(curve["episodes"][j])
-            between = float(means.std(ddof=1)) if len(ms) > 1 else float("nan")
-            rows.append({"method": method, "step": step, "episodes": curve["episodes"][j], "seeds": len(ms),
-                         "mean": float(means.mean()), "between_seeds_std": between,
-                         "episode_se": float(np.sqrt(np.mean(se ** 2))),
-                         "seeds_for_3_points": int(np.ceil((2 * between / 3) ** 2)) if np.isfinite(between) else None})
-    return rows
-
-
-def stability(curve: dict) -> list[dict]:
-    """Per method, over the evaluations of the curve's last third (periodic ones): the std of one seed's score from
-    checkpoint to checkpoint (its mean over seeds), against the episode noise of one evaluation, and the mean over
-    the last-third evaluations per seed (mean ± std over seeds): an average over checkpoints."""
-    steps = np.array(curve["steps"], float)
-    last = steps >= steps.max() * 2 / 3
-    rows = []
-    for method in dict.fromkeys(m["method"] for m in curve["models"]):
-        ms = [m for m in curve["models"] if m["method"] == method]
-        M = np.array([m["mean"] for m in ms], float)[:, last]
-        keep = np.isfinite(M).all(0)
-        M = M[:, keep]
-        if M.shape[1] < 2:
-            continue
-        se = np.array([m["std"] for m in ms], float)[:, last][:, keep] / np.sqrt(np.array(curve["episodes"])[last][keep])
-        avg = M.mean(1)
-        rows.append({"method": method, "evaluations": int(M.shape[1]), "from_step": int(steps[last][keep][0]),
-                     "checkpoint_std": float(M.std(1, ddof=1).mean()), "episode_se": float(np.sqrt((se ** 2).mean())),
-                     "last_third_mean": float(avg.mean()),
-                     "last_third_between_seeds": float(avg.std(ddof=1)) if len(avg) > 1 else float("nan"),
-                     "first_to_last": float(M[:, -1].mean() - M[:, 0].mean())})
-    return rows
-
-
-def plot(curve: dict, png: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    steps = np.array(curve["steps"])
-    for k, method in enumerate(dict.fromkeys(m["method"] for m in curve["models"])):
-        ms = [m for m in curve["models"] if m["method"] == method]
-        means = np.array([m["mean"] for m in ms])
-        ls = "--" if method.endswith("(raw params)") else "-"
-        for m in ms:
-            ax.plot(steps, m["mean"], color=f"C{k}", alpha=0.3, lw=1, ls=ls)
-        ax.errorbar(steps, means.mean(0), yerr=means.std(0, ddof=1) if len(ms) > 1 else None, color=f"C{k}", lw=2,
-                    capsize=3, ls=ls, label=f"{method} (mean ± std over {len(ms)} seeds)")
-    ds = curve["dataset"]
-    ax.axhline(ds["normalized_score_mean"], color="gray", ls=":", label="dataset mean")
-    c = curve["config"]
-    ax.set(xlabel="gradient step", ylabel=f"normalised score ({curve['episodes'][-1]} episodes per seed)",
-           title=f"{c['env']} {c['dataset']}: DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, "
-                 f"lr {c['learning_rate']:g} {c.get('lr_schedule', 'constant')}"
-                 + (f", EMA {c['ema_decay']:g}" if c.get("ema_decay") else ""))
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-
-
-def report() -> str:
-    """``experiments/results/curves.md``: every curve's table and its noise."""
-    lines = ["# Score curves", "",
-             "Made by `python experiments/curves.py report` from `experiments/results/curves/*.json`;",
-             "each file names the command that trained it. Scores are normalised (brax dynamics: our references).", ""]
-    for fn in sorted(os.listdir(RESULTS)) if os.path.isdir(RESULTS) else []:
-        if not fn.endswith(".json"):
-            continue
-        with open(os.path.join(RESULTS, fn)) as f:
-            curve = json.load(f)
-        c, ds = curve["config"], curve["dataset"]
-        lines += [f"## {fn[:-5]}", "", f"![curve](curves/{fn[:-5]}.png)", ""]
-        if curve.get("partial"):
-            lines += [f"**Partial: the run stopped at step {curve['steps'][-1]} of {c['steps']}**; the command below "
-                      "resumes it from its last checkpoint (in `runs/curves/`, on the machine that ran it) or, "
-                      "elsewhere, runs it again.", ""]
-        lines += [
-                  f"`{curve['command']}`; data `{os.path.basename(ds['path'])}` (sha256 {ds['sha256'][:12]}, "
-                  f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised "
-                  f"{ds['normalized_score_mean']:.1f}); DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr "
-                  f"{c['learning_rate']:g} {c.get('lr_schedule', 'constant')}, warm-up {c['warmup_steps']}, batch "
-                  f"{c['batch_size']}{', EMA %g of the parameters' % c['ema_decay'] if c.get('ema_decay') else ''}; "
-                  "physics "
-                  f"{(curve.get('physics') or {}).get('physics')}.",
-                  "", "| method | step | seeds x episodes | mean | std between seeds | SE of one seed (episodes) | "
-                  "seeds for ±3 points |", "|---|---|---|---|---|---|---|"]
-        lines += [f"| {r['method']} | {r['step']} | {r['seeds']} x {r['episodes']} | {r['mean']:.1f} | "
-                  f"{r['between_seeds_std']:.1f} | {r['episode_se']:.1f} | {r['seeds_for_3_points']} |"
-                  for r in noise(curve)]
-        st = stability(curve)
-        if st:
-            lines += ["", "Over the last third of the curve: how much one seed's score moves from checkpoint to checkpoint "
-                      "(std over its evaluations, mean over seeds) against one evaluation's episode noise, and the "
-                      "score averaged over those checkpoints per seed:", "",
-                      "| method | evaluations (from step) | checkpoint-to-checkpoint std | episode SE | "
-                      "last-third average, mean ± std over seeds | last minus first of the third |",
-                      "|---|---|---|---|---|---|"]
-            lines += [f"| {r['method']} | {r['evaluations']} (from {r['from_step']}) | {r['checkpoint_std']:.1f} | "
-                      f"{r['episode_se']:.1f} | {r['last_third_mean']:.1f} ± {r['last_third_between_seeds']:.1f} | "
-                      f"{r['first_to_last']:+.1f} |" for r in st]
-        lines.append("")
-    text = "\n".join(lines) + "\n"
-    with open(os.path.join(HERE, "results", "curves.md"), "w") as f:
-        f.write(text)
-    return text
 
 
 def ties(cells=(("walker", "medium"), ("hopper", "medium-replay"), ("halfcheetah", "medium-expert")),
