@@ -111,8 +111,18 @@ def tanh_gaussian_log_prob(actions, mean, log_std, margin: float = 1e-3):
     return gaussian_log_prob(u, mean, log_std) - _tanh_correction(u)
 
 
+def repeat(x, n: int):
+    """``[n, *x.shape]``: ``n`` copies of ``x`` on a new leading axis (samples per state)."""
+    return jnp.broadcast_to(x, (n, *x.shape))
+
+
+def gaussian_sample(rng, mean, log_std):
+    """A reparameterised sample ``mean + std * eps`` of the pre-tanh Gaussian."""
+    return mean + jnp.exp(log_std) * jax.random.normal(rng, mean.shape)
+
+
 def tanh_gaussian_sample(rng, mean, log_std):
     """``(actions [..., act], log_prob [...])``: a reparameterised sample of ``tanh(N(mean, std))`` and its
     log-density, with the tanh's change of variables ``log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u))``."""
-    u = mean + jnp.exp(log_std) * jax.random.normal(rng, mean.shape)
+    u = gaussian_sample(rng, mean, log_std)
     return jnp.tanh(u), gaussian_log_prob(u, mean, log_std) - _tanh_correction(u)

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from ...data import Transitions
+from ..critic_networks import gaussian_sample, repeat
 from .networks import decode_samples
 
 sg = jax.lax.stop_gradient
@@ -41,16 +42,15 @@ def bear_losses(agent, params, batch: Transitions, rng, q_on):
     k_vae, k_next, k_dec, k_pi = jax.random.split(rng, 4)
     recon, mean_z, std_z = vae.apply(params["vae"], s, a, k_vae)
     loss_vae = vae_loss(recon, a, mean_z, std_z)
-    tile = lambda x, n: jnp.broadcast_to(x, (n, *x.shape))  # noqa: E731
     m2, ls2 = actor.apply(sg(params["actor"]), s2)
-    u2 = tile(m2, agent.n_target) + jnp.exp(ls2) * jax.random.normal(k_next, (agent.n_target, *m2.shape))
-    q2 = critic.apply(sg(params["target_critic"]), tile(s2, agent.n_target), jnp.tanh(u2))  # [2, n, B]
+    u2 = gaussian_sample(k_next, repeat(m2, agent.n_target), repeat(ls2, agent.n_target))
+    q2 = critic.apply(sg(params["target_critic"]), repeat(s2, agent.n_target), jnp.tanh(u2))  # [2, n, B]
     target = (0.75 * q2.min(0) + 0.25 * q2.max(0)).max(0)
     y = sg(batch.rewards + agent.discount * (1.0 - batch.done) * target)
     loss_critic = ((critic.apply(params["critic"], s, a) - y[None]) ** 2).mean(1).sum()
     _, raw_vae = decode_samples(vae, sg(params["vae"]), k_dec, s, agent.n_mmd)
     mean, log_std = actor.apply(params["actor"], s)
-    raw_pi = tile(mean, agent.n_mmd) + jnp.exp(log_std) * jax.random.normal(k_pi, (agent.n_mmd, *mean.shape))
+    raw_pi = gaussian_sample(k_pi, repeat(mean, agent.n_mmd), repeat(log_std, agent.n_mmd))
     discrepancy = mmd(sg(raw_vae), raw_pi, agent.kernel, agent.sigma)  # [B]
     alpha = jnp.exp(params["log_alpha"])
     q_pi = critic.apply(sg(params["critic"]), s, jnp.tanh(raw_pi[0])).min(0)

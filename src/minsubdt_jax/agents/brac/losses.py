@@ -4,10 +4,9 @@ pass with ``stop_gradient`` between networks, and its behaviour policy's maximum
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 
 from ...data import Transitions
-from ..critic_networks import tanh_gaussian_log_prob, tanh_gaussian_sample
+from ..critic_networks import repeat, tanh_gaussian_log_prob, tanh_gaussian_sample
 
 sg = jax.lax.stop_gradient
 
@@ -18,10 +17,9 @@ def kl_estimate(rng, actor, behavior, actor_params, behavior_params, states, n: 
     (``divergences.py``, ``kl`` with ``CLIP_EPS``). Reparameterised: the gradient reaches ``actor_params``."""
     mean, log_std = actor.apply(actor_params, states)
     mean_b, log_std_b = behavior.apply(behavior_params, states)
-    tile = lambda x: jnp.broadcast_to(x, (n, *x.shape))  # noqa: E731
-    a, _ = tanh_gaussian_sample(rng, tile(mean), tile(log_std))
-    return (tanh_gaussian_log_prob(a, tile(mean), tile(log_std))
-            - tanh_gaussian_log_prob(a, tile(mean_b), tile(log_std_b))).mean(0)
+    mean, log_std, mean_b, log_std_b = (repeat(x, n) for x in (mean, log_std, mean_b, log_std_b))
+    a, _ = tanh_gaussian_sample(rng, mean, log_std)
+    return (tanh_gaussian_log_prob(a, mean, log_std) - tanh_gaussian_log_prob(a, mean_b, log_std_b)).mean(0)
 
 
 def brac_losses(agent, params, batch: Transitions, rng, q_on):

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from ...data import Transitions
-from ..critic_networks import tanh_gaussian_sample
+from ..critic_networks import repeat, tanh_gaussian_sample
 
 sg = jax.lax.stop_gradient
 
@@ -48,7 +48,7 @@ def cql_losses(agent, params, batch: Transitions, rng):
     q_data = critic.apply(params["critic"], s, a)  # [2, B]
     td_loss = ((q_data - y[None]) ** 2).mean(1).sum()
     n, (b, act) = agent.n_actions, a.shape
-    tile = lambda x: jnp.broadcast_to(sg(x), (n, *x.shape))  # noqa: E731
+    tile = lambda x: repeat(sg(x), n)  # noqa: E731  (the penalty's samples: no gradient into the actor's outputs)
     a_rand = jax.random.uniform(k_rand, (n, b, act), minval=-1.0, maxval=1.0)
     a_cur, logp_cur = tanh_gaussian_sample(k_cur, tile(mean), tile(log_std))
     a_cur_next, logp_cur_next = tanh_gaussian_sample(k_cur_next, tile(mean_next), tile(log_std_next))
