@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     from minsubdt_jax.methods import get_method
     from minsubdt_jax.parallel import make_mesh
     from minsubdt_jax.pipeline import load, prepare
-    from minsubdt_jax.train import evaluate_models
+    from minsubdt_jax.program import evaluate_models
 
     with open(os.path.join(a.run, "config.json")) as f:
         cfg = Config(**json.load(f))

@@ -3,6 +3,7 @@
     python experiments/table1.py                      # run what is missing (cpu preset, 3 seeds), then aggregate
     python experiments/table1.py run --seeds 0 --envs hopper --datasets medium
     python experiments/table1.py run --preset paper --envs walker --datasets medium   # one unit: 4 methods x 3 seeds
+    python experiments/table1.py run --preset paper --envs walker     # one unit: 3 datasets x 4 methods x 3 seeds
     python experiments/table1.py aggregate            # tables and plots from the results present
 
 Every run (env x dataset x method x seed) is one model; its compact result goes to
@@ -10,8 +11,9 @@ Every run (env x dataset x method x seed) is one model; its compact result goes 
 whose result exists is skipped, so an interrupted sweep resumes where it stopped (the lowest missing seed of
 every cell first). In each env x dataset the methods missing the same consecutive seeds a..b train as one
 program, ``--method m1,m2,... --seeds S`` (a unit: up to 4 methods x 3 seeds = 12 models vmapped in one jitted
-step), checkpointed (resumable, also across machines) in ``runs/table1/{preset}/{env}-{dataset}-{m1+m2...}-s{a}-{b}``. The datasets are the
-named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across training seeds.
+step; with ``--whole-env``, the default at ``--preset paper``, an env's datasets too: 36 models, ``--dataset
+a,b,c``), checkpointed (resumable after a cut at any chunk, also across machines) in
+``runs/table1/{preset}/{env}-{dataset[+...]}-{m1+m2...}-s{a}-{b}``. The datasets are the named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across training seeds.
 ``aggregate`` writes ``experiments/results/table1.md`` / ``.json`` (normalised score mean ± std over the
 seeds present, with their count; averages with and without medium-replay; the better-than-demonstrated
 report) and ``experiments/results/table1_costs_{env}.png`` (demos' vs rollouts' engineered cost features).
@@ -36,56 +38,13 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs)
+from table1_units import compact, per_seed_results, plan_units, run_name, seed_runs  # noqa: E402,F401
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
-def run_name(env, dataset, method, seed) -> str:
-    return f"{env}-{dataset}-{method}-s{seed}"
-
-
 def result_dir(preset: str, results_root: str = RESULTS) -> str:
     return os.path.join(results_root, "table1", preset)
-
-
-def compact(results: dict) -> dict:
-    """The part of ``train``'s results.json that the table needs, floats rounded (small files to commit)."""
-    def rnd(x):
-        if isinstance(x, float):
-            return round(x, 5)
-        if isinstance(x, list):
-            return [rnd(v) for v in x]
-        if isinstance(x, dict):
-            return {k: rnd(v) for k, v in x.items()}
-        return x
-
-    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics")
-    return rnd({k: results[k] for k in keep if k in results})
-
-
-def seed_runs(seeds) -> list[tuple[int, int]]:
-    """Sorted seeds -> ``(first, count)`` runs of consecutive seeds, each one ``--seeds count`` program."""
-    runs = []
-    for s in sorted(set(seeds)):
-        if runs and runs[-1][0] + runs[-1][1] == s:
-            runs[-1] = (runs[-1][0], runs[-1][1] + 1)
-        else:
-            runs.append((s, 1))
-    return runs
-
-
-def per_seed_results(res: dict, i: int) -> dict:
-    """Model ``i`` of a run's results (one of its methods x seeds), shaped as that model's single run would report
-    them: its method and seed in the config, its own data summary and evaluation."""
-    model = res["models"][i] if "models" in res else {"method": res["config"]["method"], "seed": res["config"]["seed"]}
-    out = {k: v for k, v in res.items() if k not in ("seeds", "models", "methods", "eval_per_seed", "eval_by_method",
-                                                        "dataset_per_model")}
-    out["config"] = dict(res["config"], method=model["method"], seed=model["seed"], seeds=1)
-    if "dataset_per_model" in res:
-        out["dataset"] = dict(res["dataset_per_model"][i], costs_sample=res["dataset"].get("costs_sample", []))
-    if "eval_per_seed" in res:
-        out["eval"] = res["eval_per_seed"][i]
-    return out
 
 
 def variant(preset: str, costs: str | None = None) -> str:
@@ -94,9 +53,12 @@ def variant(preset: str, costs: str | None = None) -> str:
 
 
 def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds=(0, 1, 2), runs_root="runs/table1",
-              results_root=RESULTS, train_fn=None, log=print, physics="auto", costs=None) -> dict:
+              results_root=RESULTS, train_fn=None, log=print, physics="auto", costs=None, whole_env=False,
+              **overrides) -> dict:
     """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
     ``costs`` (``--costs``) chooses the cost metrics; its results go to their own folder (:func:`variant`).
+    ``whole_env``: an env's datasets train in one program (:func:`table1_units.plan_units`); ``overrides``:
+    config fields set on the preset (``precision``).
 
     In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
     seeds is one program: ``--method a,b,... --seeds S``, every (method, seed) a model vmapped in one jitted step
@@ -109,27 +71,16 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     out_dir = result_dir(variant(preset, costs), results_root)
     os.makedirs(out_dir, exist_ok=True)
     path = lambda e, d, m, s: os.path.join(out_dir, run_name(e, d, m, s) + ".json")  # noqa: E731
-    status = {"done": [], "skipped": [], "failed": []}
-    todo = []
-    for d in datasets:
-        for e in envs:
-            groups = {}  # (missing seeds, agent) -> the methods missing exactly them (in the order asked)
-            for m in methods:
-                have = [s for s in seeds if os.path.exists(path(e, d, m, s))]
-                status["skipped"] += [run_name(e, d, m, s) for s in have]
-                missing = tuple(sorted(set(seeds) - set(have)))
-                if missing:
-                    groups.setdefault((missing, ALL_METHODS[m].agent), []).append(m)
-            for (missing, _), ms in groups.items():
-                todo += [(first, d, e, tuple(ms), n) for first, n in seed_runs(missing)]
-    todo.sort(key=lambda t: t[0])  # the lowest missing seed of every cell first (stable: datasets, envs, methods)
-    for i, (first, ds, env, ms, n) in enumerate(todo):
-        names = [run_name(env, ds, m, s) for m in ms for s in range(first, first + n)]
-        label = "+".join(ms) + f" {env}-{ds} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
+    todo, skipped = plan_units(envs, datasets, methods, seeds, path, whole_env)
+    status = {"done": [], "skipped": skipped, "failed": []}
+    for i, (first, dss, env, ms, n) in enumerate(todo):
+        names = [run_name(env, d, m, s) for d in dss for m in ms for s in range(first, first + n)]
+        label = "+".join(ms) + f" {env}-{'+'.join(dss)} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
-        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=ds, method=",".join(ms), seed=first, seeds=n,
-                                  physics=physics, costs=costs,
-                                  out=os.path.join(runs_root, variant(preset, costs), f"{env}-{ds}-{'+'.join(ms)}{suffix}"))
+        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=",".join(dss), method=",".join(ms), seed=first,
+                                  seeds=n, physics=physics, costs=costs, **overrides,
+                                  out=os.path.join(runs_root, variant(preset, costs),
+                                                   f"{env}-{'+'.join(dss)}-{'+'.join(ms)}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
         try:
@@ -141,9 +92,9 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         scores = []
         for j, name in enumerate(names):
             one = per_seed_results(res, j)
-            m, s = one["config"]["method"], one["config"]["seed"]
-            dst = path(env, ds, m, s)
-            assert name == run_name(env, ds, m, s), (name, m, s)
+            d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
+            dst = path(env, d, m, s)
+            assert name == run_name(env, d, m, s), (name, d, m, s)
             with open(dst + ".tmp", "w") as f:
                 json.dump(compact(one), f)
             os.replace(dst + ".tmp", dst)  # a result file is complete or absent
@@ -270,6 +221,10 @@ def main(argv=None) -> int:
                    help="who steps the recordings and evaluations (auto: C MuJoCo on a CPU, MJX on a GPU)")
     p.add_argument("--costs", default=None, help="cost metrics (minsubdt_jax.costs), comma-separated; default the "
                    "env's. Results and their table go to experiments/results/table1/<preset>-costs-<names>/")
+    p.add_argument("--whole-env", action=argparse.BooleanOptionalAction, default=None,
+                   help="train an env's datasets (all its methods x seeds) in one program (default: with --preset "
+                   "paper, for a GPU)")
+    p.add_argument("--precision", default="f32", choices=["f32", "tf32", "bf16"], help="the DT's matmul precision")
     a = p.parse_args(argv)
     from minsubdt_jax.config import PRESETS
 
@@ -285,7 +240,9 @@ def main(argv=None) -> int:
                 p.error(f"{env}: {e}")
     failed = []
     if a.action in ("all", "run"):
-        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics, costs=a.costs)
+        whole = a.preset == "paper" if a.whole_env is None else a.whole_env
+        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics, costs=a.costs,
+                       whole_env=whole, **({"precision": a.precision} if a.precision != "f32" else {}))
         print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
         failed = st["failed"]
     if a.action in ("all", "aggregate"):

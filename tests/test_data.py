@@ -1,5 +1,6 @@
 import h5py
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -135,6 +136,15 @@ def test_sampler_windows_padding_and_weights():
     six = traj == 2
     first_t = np.where(b.mask[six].all(1), b.states[six, 0, 1], -1)
     assert abs(np.mean(first_t == 0) - 1 / 6) < 0.03
+    # episodes of weight 0 (another dataset's, in a program over several) are never drawn and leave the draws of
+    # the others as they were, shifted to their new rows
+    from minsubdt_jax.data import draw_episodes
+
+    key = jax.random.PRNGKey(3)
+    alone = np.asarray(draw_episodes(key, jnp.array([1, 3, 6], jnp.int32), 500))
+    among = np.asarray(draw_episodes(key, jnp.array([0, 0, 1, 0, 3, 6, 0], jnp.int32), 500))
+    assert set(alone) == {0, 1, 2}
+    np.testing.assert_array_equal(among, np.array([2, 4, 5])[alone])
 
 
 def test_generated_dataset_is_deterministic_and_valid(small_dataset):

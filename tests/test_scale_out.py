@@ -158,3 +158,39 @@ def test_two_processes_train_the_one_process_model(single_runs, small_dataset_pa
     # 3 episodes over two processes: 4 rolled out (2 each), gathered, the first 3 scored
     assert res["eval"]["episodes"] == 3
     np.testing.assert_allclose(res["eval"]["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
+
+
+def test_datasets_in_one_program_equal_single_dataset_runs(single_runs, small_dataset_path, tmp_path):
+    """--dataset a,b: one model per dataset in one program (issue 23's whole env in one program). Each draws only
+    its own dataset's episodes, so it trains on the batches of its single-dataset run and equals it; each is
+    scored against its own demonstrations."""
+    from minsubdt_jax.data import generate_random, save_d4rl
+
+    other = str(tmp_path / "hopper-other.hdf5")  # another dataset: more episodes, shorter, other actions
+    save_d4rl(generate_random("hopper", episodes=45, horizon=40, seed=7), other, env="hopper", dynamics="brax",
+              physics="mujoco")
+    res = train(_cfg(f"{small_dataset_path},{other}", tmp_path / "both"), verbose=False)
+    assert res["models"] == [{"dataset": d, "method": "minsubdt", "seed": 0} for d in (small_dataset_path, other)]
+    _, params = _params(tmp_path / "both")
+    losses = _losses(tmp_path / "both")
+    single_other = train(_cfg(other, tmp_path / "other"), verbose=False)
+    for i, (run_dir, single) in enumerate([single_runs[0], (tmp_path / "other", single_other)]):
+        _, params_1 = _params(run_dir)
+        for a, b in zip(params, params_1):
+            np.testing.assert_allclose(a[i], b[0], rtol=1e-2, atol=ADAM_NOISE)
+        np.testing.assert_allclose(losses[:, i], _losses(run_dir)[:, 0], rtol=1e-5)
+        assert res["dataset_per_model"][i]["sha256"] == single["dataset"]["sha256"]
+        ev = res["eval_per_seed"][i]  # scored against its own demos: the same min-subdominance as alone
+        np.testing.assert_allclose(ev["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
+        np.testing.assert_allclose(ev["min_subdominance_mean"], single["eval"]["min_subdominance_mean"], rtol=1e-4)
+    assert set(res["eval_by_method"]) == {f"{d}/minsubdt" for d in (small_dataset_path, other)}
+    assert not np.allclose(losses[:, 0], losses[:, 1])  # the two datasets really differ
+    # cut after the first chunk and resumed: the same models
+    train(_cfg(f"{small_dataset_path},{other}", tmp_path / "cut", steps=10, eval_episodes=0), verbose=False)
+    train(_cfg(f"{small_dataset_path},{other}", tmp_path / "cut", eval_episodes=0), resume=True, verbose=False)
+    step, resumed = _params(tmp_path / "cut")
+    assert step == 20
+    for a, b in zip(params, resumed):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="each once"):
+        _cfg(f"{other},{other}", tmp_path / "twice")

@@ -21,21 +21,55 @@ def table1():
 
 
 def fake_results(cfg):
-    """``train``'s results for ``cfg.methods`` x ``cfg.seeds`` models, laid out as the real one writes them."""
+    """``train``'s results for ``cfg.datasets`` x ``cfg.methods`` x ``cfg.seeds`` models, laid out as the real one
+    writes them (a dataset's score is offset by 100 x its index)."""
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
+    many = len(cfg.datasets) > 1
     models = [(m, s) for m in cfg.methods for s in seeds]
-    evals = [{"method": m, "seed": s, "normalized_score_mean": BASE[m] + s, "better_than_mean_demo_share": 0.5 + 0.1 * s,
-              "min_subdominance_mean": 1.0, "episodes": 2, "costs": [[0.4, 0.5], [0.6, 0.4]]} for m, s in models]
+    evals = [{"method": m, "seed": s, "normalized_score_mean": BASE[m] + s + 100 * i,
+              "better_than_mean_demo_share": 0.5 + 0.1 * s, "min_subdominance_mean": 1.0, "episodes": 2,
+              "costs": [[0.4, 0.5], [0.6, 0.4]], **({"dataset": d} if many else {})}
+             for i, d in enumerate(cfg.datasets) for m, s in models]
+    models = [m for _ in cfg.datasets for m in models]
     data = [{"normalized_score_mean": 45.0, "min_subdominance_mean": 1.5,
              "costs_mean": {"x_velocity": 0.5, "z_velocity": 0.5},
              "spearman_neg_min_subdominance_vs_return": 0.9 if m == "minsubdt" else 0.7,
              "learned_costs": {"heldout_pair_accuracy": 0.8 + 0.01 * s}} for m, s in models]
     res = {"config": {"env": cfg.env, "dataset": cfg.dataset, "method": cfg.method, "seed": cfg.seed,
-                      "seeds": cfg.seeds}, "seeds": seeds, "models": [{"method": m, "seed": s} for m, s in models],
+                      "seeds": cfg.seeds}, "seeds": seeds,
+           "models": [{k: e[k] for k in ("dataset", "method", "seed") if k in e} for e in evals],
            "dataset": dict(data[0], costs_sample=[[0.5, 0.5]]), "train": {"steps": 1}, "eval_per_seed": evals}
     if len(models) > 1:
         res["dataset_per_model"] = data
     return res
+
+
+def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
+    """--whole-env: an env's datasets missing the same seeds of the same methods are one program (--dataset a,b);
+    each model's file names its own dataset and holds its own evaluation."""
+    calls = []
+
+    def fake_train(cfg, resume=False, verbose=False):
+        calls.append((cfg.env, cfg.dataset, cfg.method, cfg.seed, cfg.seeds, os.path.basename(cfg.out),
+                      cfg.precision))
+        return fake_results(cfg)
+
+    kw = dict(preset="smoke", envs=("hopper", "walker"), datasets=("medium", "medium-replay"),
+              runs_root=str(tmp_path / "runs"), results_root=str(tmp_path / "res"), train_fn=fake_train,
+              log=lambda *_: None, whole_env=True, precision="bf16")
+    res_dir = tmp_path / "res" / "table1" / "smoke"
+    res_dir.mkdir(parents=True)
+    (res_dir / "walker-medium-dt-s0.json").write_text("{}")  # walker medium has DT's seed 0 already
+    st = table1.run_sweep(methods=("minsubdt", "dt"), seeds=(0, 1), **kw)
+    assert calls == [
+        ("hopper", "medium,medium-replay", "minsubdt,dt", 0, 2, "hopper-medium+medium-replay-minsubdt+dt-s0-1", "bf16"),
+        ("walker", "medium", "minsubdt", 0, 2, "walker-medium-minsubdt-s0-1", "bf16"),
+        ("walker", "medium-replay", "minsubdt,dt", 0, 2, "walker-medium-replay-minsubdt+dt-s0-1", "bf16"),
+        ("walker", "medium", "dt", 1, 1, "walker-medium-dt-s1", "bf16")]
+    assert st["skipped"] == ["walker-medium-dt-s0"] and not st["failed"] and len(st["done"]) == 15
+    r = json.loads((res_dir / "hopper-medium-replay-dt-s1.json").read_text())
+    assert r["config"]["dataset"] == "medium-replay" and r["config"]["method"] == "dt" and r["config"]["seed"] == 1
+    assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model
 
 
 def test_seed_runs_groups_consecutive_seeds(table1):

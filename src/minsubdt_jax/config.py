@@ -21,7 +21,9 @@ class Config:
     """Every field is a ``--flag`` of ``python -m minsubdt_jax.train`` (underscores become dashes)."""
 
     env: str = "walker"  # hopper | walker | halfcheetah
-    dataset: str = "medium"  # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path
+    # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path; several, comma-separated, train
+    # in one program (one env's: every model draws only its own dataset's episodes)
+    dataset: str = "medium"
     # minsubdt | minsubdt-learned | dt | bc | bc-mlp: see minsubdt_jax.methods (--returns subdom|learned|true|none
     # still names the first four). Several, comma-separated, train in one program (they must share an agent)
     method: str = "minsubdt"
@@ -114,9 +116,14 @@ class Config:
     def run_dir(self) -> str:
         if self.out:
             return self.out
-        name = self.dataset.rsplit("/", 1)[-1].removesuffix(".hdf5")
+        name = "+".join(d.rsplit("/", 1)[-1].removesuffix(".hdf5") for d in self.datasets)
         seeds = f"{self.seed}" if self.seeds == 1 else f"{self.seed}-{self.seed + self.seeds - 1}"
         return f"runs/{self.env}-{name}-{'+'.join(self.methods)}-s{seeds}"
+
+    @property
+    def datasets(self) -> tuple[str, ...]:
+        """The datasets of ``--dataset`` (one, or several comma-separated)."""
+        return tuple(d.strip() for d in self.dataset.split(","))
 
     @property
     def methods(self) -> tuple[str, ...]:
@@ -155,6 +162,11 @@ def validate(cfg: Config) -> Config:
         raise ValueError(f"--method must be one or several (comma-separated, each once) of {list(METHODS)}, "
                          f"got {cfg.method!r}")
     agents = {METHODS[m].agent for m in cfg.methods}
+    if "" in cfg.datasets or len(set(cfg.datasets)) != len(cfg.datasets):
+        raise ValueError(f"--dataset must be one or several (comma-separated, each once) datasets, got {cfg.dataset!r}")
+    if len(cfg.datasets) > 1 and agents == {"awr"}:
+        raise ValueError("AWR's iteration standardises advantages over every stored episode, so its datasets cannot "
+                         "share one program: train them apart")
     if len(agents) > 1:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
     if cfg.costs is not None:

@@ -37,17 +37,18 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from .agents import FIXED_STEPS, batch_size_of, make_agent
-from .agents.base import PolicyInputs, eval_params, init_seed_states, make_train_chunk, optimizer_for
+from .agents.base import eval_params, init_seed_states, make_train_chunk, optimizer_for
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
 from .costs import cost_metrics
 from .data.d4rl import file_dynamics
 from .envs import physics_record, resolve_physics
-from .evaluation import across_seeds, evaluate_policy
+from .evaluation import across_seeds
 from .loggers import Loggers, logger_names
 from .methods import get_method
 from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh, replicate)
-from .pipeline import Prepared, load, prepare
+from .pipeline import load, prepare
+from .program import eval_record, evaluate_models, stack_models
 from .references import REFERENCE_SOURCES, references_record
 from .rundir import (DATASET_FILE, check_run_dir, check_same_data, exit_code, plot_learning_curve, progress,
                      truncate_metrics, write_atomic)
@@ -93,32 +94,46 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
         raise ValueError("give the cost metrics once: as cfg.costs (names) or as train(..., metrics=...)")
     if metrics is not None:
         cost_metrics(cfg.env, metrics)  # checked before anything is written
-    source = load(cfg, verbose, physics)
-    dynamics, dynamics_how = file_dynamics(source, cfg.env, cfg.dynamics)
+    names = cfg.datasets
+    sources = [load(dataclasses.replace(cfg, dataset=d), verbose, physics) for d in names]
+    found = [file_dynamics(src, cfg.env, cfg.dynamics) for src in sources]
+    if len({d for d, _ in found}) > 1:
+        raise ValueError(f"--dataset {cfg.dataset}: the datasets have different dynamics "
+                         f"({', '.join(f'{n}: {d}' for n, (d, _) in zip(names, found))}); one program evaluates "
+                         f"in one: train them apart")
+    dynamics, dynamics_how = found[0]
     if verbose:
         print(f"evaluation in {dynamics} dynamics ({dynamics_how['how']}), {physics} physics", flush=True)
-    preps, per_model = {}, []  # one per method, and per seed where the features are learned (they depend on the seed)
-    for m, s in models:
-        key = (m.name, s if m.features == "learned" else None)
+    if len(names) > 1:  # several datasets, dataset-major: (dataset, method, seed)
+        models = [(d, m, s) for d in names for m, s in models]
+    preps, per_model = {}, []  # one per dataset and method, and per seed where the features are learned (they
+    for model in models:  # depend on the seed)
+        m, s = model[-2:]
+        d = model[0] if len(model) == 3 else names[0]
+        key = (d, m.name, s if m.features == "learned" else None)
         if key not in preps:
-            preps[key] = prepare(dataclasses.replace(cfg, seed=s), m, verbose, source, dynamics, metrics)
+            preps[key] = prepare(dataclasses.replace(cfg, seed=s, dataset=d), m, verbose, sources[names.index(d)],
+                                 dynamics, metrics)
         per_model.append(preps[key])
-    data, data_axis = stack_return_tokens(per_model)
+    data, data_axis = stack_models(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
                                  "the training data (every process must load the same dataset)")
-    check_same_data(out, source.sha256, resume)
+    sha256 = "+".join(src.sha256 for src in sources)
+    check_same_data(out, sha256, resume)
     if main:
         os.makedirs(out, exist_ok=True)
         write_atomic(os.path.join(out, "config.json"), cfg.to_json())
+        record = lambda src: {"path": src.path, "sha256": src.sha256, "episodes": src.data.num_trajectories,  # noqa
+                              "transitions": src.data.num_transitions, "dynamics": dynamics,
+                              "recorded_physics": src.physics}
         write_atomic(os.path.join(out, DATASET_FILE), json.dumps(
-            {"path": source.path, "sha256": source.sha256, "episodes": source.data.num_trajectories,
-             "transitions": source.data.num_transitions, "dynamics": dynamics, "recorded_physics": source.physics},
-            indent=2))
-    dataset = source.data
+            record(sources[0]) if len(sources) == 1 else
+            {"sha256": sha256, "dynamics": dynamics, "datasets": [record(src) for src in sources]}, indent=2))
+    dataset = sources[0].data
     agent = make_agent(methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
-                       max(cfg.episode_length, dataset.max_len))
+                       max([cfg.episode_length] + [src.data.max_len for src in sources]))
     tx = optimizer_for(agent, cfg)
-    state = init_seed_states(agent, tx, [s for _, s in models], ema=cfg.ema_decay > 0)
+    state = init_seed_states(agent, tx, [model[-1] for model in models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
     if resume and mngr.latest_step() is not None:
         state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
@@ -127,7 +142,8 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
         print(f"resumed from step {start}", flush=True)
     state, data = replicate((state, data), mesh)
     if verbose and (mesh.size > 1 or len(models) > 1):
-        print(f"{len(models)} model(s) ({len(methods)} method(s) x {len(seeds)} seed(s)) in one program; batch split "
+        print(f"{len(models)} model(s) ({len(names)} dataset(s) x {len(methods)} method(s) x {len(seeds)} seed(s)) in "
+              f"one program; batch split "
               f"over {mesh.size} device(s) in "
               f"{jax.process_count()} process(es): {batch_size // mesh.size} "
               f"{'transitions' if hasattr(agent, 'make_step') else 'sequences'} each", flush=True)
@@ -191,33 +207,38 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                "references": references_record(cfg.env, dynamics),
                "physics": {**physics_record(physics, dynamics, cfg.physics_threads), "dynamics_from": dynamics_how},
                "platform": platform(), "seeds": seeds,
-               "models": [{"method": m.name, "seed": s} for m, s in models],
+               "models": [dict(zip(("dataset",) * (len(mo) == 3) + ("method", "seed"), mo[:-2] + (mo[-2].name, mo[-1])))
+                          for mo in models],
                "train": {"steps": step, "steps_this_run": step - start, "seconds_this_run": train_seconds}}
     results.update({"method": describe(methods[0])} if len(methods) == 1 else {"methods": [describe(m) for m in methods]})
     if len(preps) > 1:  # the models' own data summaries (min-subdominance on their features, learned costs)
-        results["dataset_per_model"] = [{k: v for k, v in p.summary(cfg.env).items() if k != "costs_sample"}
-                                        for p in per_model]
+        results["dataset_per_model"] = [{k: v for k, v in p.summary(cfg.env).items()
+                                         if k != "costs_sample" or len(names) > 1} for p in per_model]
     if cfg.eval_episodes:
         te = time.time()
         per = evaluate(eval_params(state), cfg.eval_episodes)
         results["eval_per_seed"] = per  # one entry per model (its method and seed inside)
-        by_method = {m.name: [e for e in per if e["method"] == m.name] for m in methods}
-        summary = {k: v[0] if len(v) == 1 else across_seeds(v) for k, v in by_method.items()}
+        name_of = lambda e: e["method"] if len(names) == 1 else f"{e['dataset']}/{e['method']}"  # noqa: E731
+        by_method = {}  # method (dataset/method over several datasets) -> its models' indices
+        for i, e in enumerate(per):
+            by_method.setdefault(name_of(e), []).append(i)
+        summary = {k: per[v[0]] if len(v) == 1 else across_seeds([per[i] for i in v]) for k, v in by_method.items()}
         for v in summary.values():
             v["seconds"] = time.time() - te
-        if len(methods) == 1:
+        if len(summary) == 1:
             results["eval"] = summary[methods[0].name]
         else:
             results["eval_by_method"] = summary
         log(eval_record(step, per, final=True))
         for name, e in summary.items() if verbose else ():
+            demo = per_model[by_method[name][0]].summary(cfg.env)
             over = (f"{cfg.eval_episodes} episodes" if len(seeds) == 1
                     else f"{len(seeds)} seeds x {cfg.eval_episodes} episodes")
             print(f"eval {name}: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
                   f"{e['normalized_score_mean']:.1f} ± {e['normalized_score_std']:.1f} over {over} "
                   f"({REFERENCE_SOURCES[dynamics]}), min-subdominance {e['min_subdominance_mean']:.3f} "
-                  f"(dataset {results['dataset']['min_subdominance_mean']:.3f})")
-            demo = results["dataset"]["costs_mean"]
+                  f"(dataset {demo['min_subdominance_mean']:.3f})")
+            demo = demo["costs_mean"]
             print("  costs (lower is better; demos' mean): " + ", ".join(
                 f"{k} {v:.3f} ({demo[k]:.3f})" if k in demo else f"{k} {v:.3f}" for k, v in e["costs_mean"].items())
                 + f"; dominate the mean demo (no metric worse, one better): {100 * e['better_than_mean_demo_share']:.0f} %")
@@ -228,53 +249,6 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     if verbose:
         print(f"wrote {out}/results.json", flush=True)
     return results
-
-
-PER_MODEL_FIELDS = ("returns_to_go", "rewards", "last_done")  # what a method's data changes: its rewards
-
-
-def stack_return_tokens(per_model: list[Prepared]):
-    """``(data, data_axis)`` for the train chunk: one model's sampler arrays, or, when the models' rewards differ
-    (several methods, or learned costs per seed), the shared arrays with the per-model fields (return tokens
-    ``[M, N, T]``, rewards ``[M, N, T]``, ``last_done [M, N]``) stacked and a ``data_axis`` that maps only those."""
-    first = per_model[0].sampler
-    if all(p is per_model[0] for p in per_model):
-        return first, None
-    data = first.replace(**{k: jnp.stack([getattr(p.sampler, k) for p in per_model]) for k in PER_MODEL_FIELDS})
-    return data, jax.tree.map(lambda _: None, first).replace(**{k: 0 for k in PER_MODEL_FIELDS})
-
-
-def evaluate_models(cfg: Config, agent, params, models: list, per_model: list[Prepared], mesh,
-                    episodes: int, physics: str = "auto", dynamics: str = "brax") -> list[dict]:
-    """Evaluate the M trained models (``params [M, ...]``, ``models [(method, seed)]``) on ``episodes`` episodes
-    each, in one batched program (``physics``; in MJX the episodes split over ``mesh``) under ``dynamics``; a model
-    of seed s has its episodes seeded ``s + 10000``. One summary dict per model, with its method and seed."""
-    stack = lambda get: np.stack([np.asarray(get(p), np.float32) for p in per_model])  # noqa: E731
-    inputs = PolicyInputs(params=params, state_mean=stack(lambda p: p.state_mean),
-                          state_std=stack(lambda p: p.state_std), target_return=stack(lambda p: p.target_return),
-                          rtg_scale=stack(lambda p: p.rtg_scale),
-                          subtract_rewards=np.array([m.subtract_rewards for m, _ in models], np.float32))
-    learned = [p.learned for p in per_model] if any(p.learned for p in per_model) else None
-    evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
-                          seeds=[s + 10_000 for _, s in models], demo_costs=per_model[0].costs, beta=cfg.beta,
-                          alpha_max=cfg.alpha_max, learned=learned,
-                          demo_features=[p.features for p in per_model] if learned else None, mesh=mesh,
-                          physics=physics, dynamics=dynamics, threads=cfg.physics_threads,
-                          metrics=per_model[0].metrics,
-                          extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else ())
-    return [dict(ev.summary(), method=m.name, seed=s, target_return=p.target_return)
-            for ev, (m, s), p in zip(evs, models, per_model)]
-
-
-def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
-    """The ``metrics.jsonl`` record of one evaluation: per model, its method and seed, and the mean and the
-    standard deviation over its episodes of the normalised score, min-subdominance and return."""
-    rec = {"step": step, "eval_episodes": per_seed[0]["episodes"], "final": final,
-           "eval_method": [e["method"] for e in per_seed], "eval_seed": [e["seed"] for e in per_seed]}
-    for key in ("normalized_score", "min_subdominance", "return"):
-        rec[f"eval_{key}"] = [e[f"{key}_mean"] for e in per_seed]
-        rec[f"eval_{key}_std"] = [e[f"{key}_std"] for e in per_seed]
-    return rec
 
 
 def platform() -> dict:

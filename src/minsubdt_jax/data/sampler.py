@@ -1,8 +1,10 @@
 """Jitted samplers: fixed-length context windows for Decision Transformer training, and transitions
 ``(s, a, r, s', done)`` for the critic agents.
 
-Windows as in the official DT code: a trajectory is drawn with probability proportional to its length, a start
-step uniformly within it, and the window ``[start, start + K)`` is cut at the trajectory's end and
+Windows as in the official DT code: a trajectory is drawn with probability proportional to its length (as its
+``np.random.choice(p=...)``, by inverting the integer cumulative weights: episodes of weight 0, another dataset's
+in a program over several, are never drawn and do not change the draws of the others), a start step uniformly
+within it, and the window ``[start, start + K)`` is cut at the trajectory's end and
 left-padded to K. The mask is computed from the number of real tokens before any padding is written.
 
 Transitions as D4RL's ``qlearning_dataset``: every step with a next state in its episode, uniformly; the last step
@@ -26,7 +28,8 @@ from .dataset import Trajectories
 @struct.dataclass
 class SamplerData:
     """Device arrays the samplers read: states ``[N, T, obs]`` (normalised), actions ``[N, T, act]``,
-    returns_to_go ``[N, T]`` (already scaled), lengths ``[N]``, log sampling weights ``[N]`` of the windows; for
+    returns_to_go ``[N, T]`` (already scaled), lengths ``[N]``, weights ``[N]`` int32 (an episode's windows are
+    drawn in proportion to it: its length, or 0 for an episode this model does not train on); for
     transitions, the per-step rewards ``[N, T]`` (scaled alike) and ``last_done [N]`` (1.0: the last step is a
     transition with ``done``; 0.0: it is left out)."""
 
@@ -34,7 +37,7 @@ class SamplerData:
     actions: jax.Array
     returns_to_go: jax.Array
     lengths: jax.Array
-    logits: jax.Array
+    weights: jax.Array
     rewards: jax.Array
     last_done: jax.Array
 
@@ -81,17 +84,26 @@ def sampler_data(dataset: Trajectories, returns_to_go, state_mean, state_std, re
         actions=jnp.asarray(dataset.actions, jnp.float32),
         returns_to_go=jnp.asarray(rtg),
         lengths=jnp.asarray(dataset.lengths, jnp.int32),
-        logits=jnp.log(jnp.asarray(dataset.lengths, jnp.float32)),
+        weights=jnp.asarray(dataset.lengths, jnp.int32),
         rewards=jnp.asarray(np.where(dataset.valid_mask(), rewards, 0.0), jnp.float32),
         last_done=jnp.asarray(last_done, jnp.float32),
     )
+
+
+def draw_episodes(rng, weights, batch_size: int):
+    """``[batch_size]`` episode indices drawn with probability ``weights / weights.sum()`` (``weights [N]``
+    int32): a uniform integer below the total, located in the cumulative weights. Episodes of weight 0 are never
+    drawn, and appending or prepending them shifts the indices but leaves the draws of the others unchanged."""
+    cum = jnp.cumsum(weights)
+    r = jax.random.randint(rng, (batch_size,), 0, cum[-1])
+    return jnp.searchsorted(cum, r, side="right").astype(jnp.int32)
 
 
 @partial(jax.jit, static_argnames=("batch_size", "context_len"))
 def sample_batch(rng, data: SamplerData, batch_size: int, context_len: int) -> Batch:
     """Sample ``batch_size`` windows of ``context_len`` steps (see module docstring)."""
     k_traj, k_start = jax.random.split(rng)
-    traj = jax.random.categorical(k_traj, data.logits, shape=(batch_size,))  # P(i) ∝ length_i
+    traj = draw_episodes(k_traj, data.weights, batch_size)  # P(i) ∝ length_i
     length = data.lengths[traj]
     start = jnp.minimum(jnp.floor(jax.random.uniform(k_start, (batch_size,)) * length), length - 1).astype(jnp.int32)
     n_real = jnp.minimum(context_len, length - start)  # real tokens in the window, before padding
@@ -113,9 +125,10 @@ def sample_transitions(rng, data: SamplerData, batch_size: int) -> Transitions:
     """Sample ``batch_size`` transitions uniformly over the data's transitions (see module docstring): an episode
     with probability proportional to its ``length - 1 + last_done`` transitions, a step uniformly among them."""
     k_traj, k_step = jax.random.split(rng)
-    count = data.lengths - 1 + data.last_done  # [N] transitions per episode (0 for a timed-out 1-step episode)
-    traj = jax.random.categorical(k_traj, jnp.log(count), shape=(batch_size,))
-    n = count[traj]
+    # [N] transitions per episode (0 for a timed-out 1-step episode, and for an episode of weight 0)
+    count = jnp.where(data.weights > 0, data.lengths - 1 + data.last_done.astype(jnp.int32), 0)
+    traj = draw_episodes(k_traj, count, batch_size)
+    n = count[traj].astype(jnp.float32)
     t = jnp.minimum(jnp.floor(jax.random.uniform(k_step, (batch_size,)) * n), n - 1).astype(jnp.int32)
     done = t == data.lengths[traj] - 1  # sampled only where last_done
     nxt = jnp.minimum(t + 1, data.states.shape[1] - 1)

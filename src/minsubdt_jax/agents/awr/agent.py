@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import optax
 
 from ...behavior.networks import MLP
+from ...data import draw_episodes
 from ..actor_critic import CriticAgentBase
 from ..base import PolicyInputs, TrainState, ema_update
 from .losses import actor_loss, advantage_weights, lambda_returns
@@ -81,7 +82,7 @@ class AWRAgent(CriticAgentBase):
 
             def sample(rng):
                 k1, k2 = jax.random.split(rng)
-                traj = jax.random.categorical(k1, data.logits, shape=(self.batch_size,))
+                traj = draw_episodes(k1, data.weights, self.batch_size)
                 t = jnp.minimum(jnp.floor(jax.random.uniform(k2, (self.batch_size,)) * data.lengths[traj]),
                                 data.lengths[traj] - 1).astype(jnp.int32)
                 return traj, t

@@ -1,0 +1,82 @@
+"""Table 1's units: which runs (env x dataset x method x seed) are missing, grouped into the programs that train
+them, and a program's results split into one compact file per model (``experiments/table1.py``)."""
+
+from __future__ import annotations
+
+import os
+
+from minsubdt_jax.methods import METHODS as ALL_METHODS
+
+
+def run_name(env, dataset, method, seed) -> str:
+    return f"{env}-{dataset}-{method}-s{seed}"
+
+
+def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):
+    """``(units, skipped)``: the programs that train the runs without a result file (``result_path(env, dataset,
+    method, seed)``), and the names of those with one. A unit is ``(first seed, datasets, env, methods, seeds)``:
+    in each env x dataset, the methods of one agent missing the same seeds, a run of consecutive missing seeds
+    each. With ``whole_env`` the env's datasets that miss the same seeds of the same methods are one unit
+    (``--dataset a,b,c``: issue 23's whole env in one program). The lowest missing seed of every cell goes first
+    (stable: datasets, envs, methods)."""
+    units, skipped = [], []
+    for d in datasets:
+        for e in envs:
+            groups = {}  # (missing seeds, agent) -> the methods missing exactly them (in the order asked)
+            for m in methods:
+                have = [s for s in seeds if os.path.exists(result_path(e, d, m, s))]
+                skipped += [run_name(e, d, m, s) for s in have]
+                missing = tuple(sorted(set(seeds) - set(have)))
+                if missing:
+                    groups.setdefault((missing, ALL_METHODS[m].agent), []).append(m)
+            for (missing, _), ms in groups.items():
+                units += [(first, (d,), e, tuple(ms), n) for first, n in seed_runs(missing)]
+    if whole_env:
+        merged = {}  # (env, methods, first, n) -> datasets, in the order asked
+        for first, (d,), e, ms, n in units:
+            merged.setdefault((e, ms, first, n), []).append(d)
+        units = [(first, tuple(ds), e, ms, n) for (e, ms, first, n), ds in merged.items()]
+    units.sort(key=lambda t: t[0])
+    return units, skipped
+
+
+def compact(results: dict) -> dict:
+    """The part of ``train``'s results.json that the table needs, floats rounded (small files to commit)."""
+    def rnd(x):
+        if isinstance(x, float):
+            return round(x, 5)
+        if isinstance(x, list):
+            return [rnd(v) for v in x]
+        if isinstance(x, dict):
+            return {k: rnd(v) for k, v in x.items()}
+        return x
+
+    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics")
+    return rnd({k: results[k] for k in keep if k in results})
+
+
+def seed_runs(seeds) -> list[tuple[int, int]]:
+    """Sorted seeds -> ``(first, count)`` runs of consecutive seeds, each one ``--seeds count`` program."""
+    runs = []
+    for s in sorted(set(seeds)):
+        if runs and runs[-1][0] + runs[-1][1] == s:
+            runs[-1] = (runs[-1][0], runs[-1][1] + 1)
+        else:
+            runs.append((s, 1))
+    return runs
+
+
+def per_seed_results(res: dict, i: int) -> dict:
+    """Model ``i`` of a run's results (one of its methods x seeds), shaped as that model's single run would report
+    them: its method and seed in the config, its own data summary and evaluation."""
+    model = res["models"][i] if "models" in res else {"method": res["config"]["method"], "seed": res["config"]["seed"]}
+    out = {k: v for k, v in res.items() if k not in ("seeds", "models", "methods", "eval_per_seed", "eval_by_method",
+                                                        "dataset_per_model")}
+    out["config"] = dict(res["config"], method=model["method"], seed=model["seed"], seeds=1,
+                         dataset=model.get("dataset", res["config"]["dataset"]))
+    if "dataset_per_model" in res:
+        own = res["dataset_per_model"][i]  # over several datasets it has its own demos' sample
+        out["dataset"] = dict(own, costs_sample=own.get("costs_sample", res["dataset"].get("costs_sample", [])))
+    if "eval_per_seed" in res:
+        out["eval"] = res["eval_per_seed"][i]
+    return out
