@@ -184,6 +184,9 @@ def test_datasets_in_one_program_equal_single_dataset_runs(single_runs, small_da
         np.testing.assert_allclose(ev["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
         np.testing.assert_allclose(ev["min_subdominance_mean"], single["eval"]["min_subdominance_mean"], rtol=1e-4)
     assert set(res["eval_by_method"]) == {f"{d}/minsubdt" for d in (small_dataset_path, other)}
+    from minsubdt_jax.plot import curves  # the curves keep the datasets apart
+
+    assert list(curves(str(tmp_path / "both"))["score"]) == [f"{d}/minsubdt" for d in (small_dataset_path, other)]
     assert not np.allclose(losses[:, 0], losses[:, 1])  # the two datasets really differ
     # cut after the first chunk and resumed: the same models
     train(_cfg(f"{small_dataset_path},{other}", tmp_path / "cut", steps=10, eval_episodes=0), verbose=False)

@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from .rundir import exit_code, read_metrics
+from .rundir import exit_code, model_labels, read_metrics
 
 
 def curves(run_dir: str) -> dict:
@@ -30,8 +30,8 @@ def curves(run_dir: str) -> dict:
            "min_subdominance": {}}
     evals = [r for r in rows if "eval_normalized_score" in r]
     for key, name in (("eval_normalized_score", "score"), ("eval_min_subdominance", "min_subdominance")):
-        for method in dict.fromkeys(m for r in evals for m in r.get("eval_method", ["run"])):
-            pts = [(r["step"], [v for m, v in zip(r.get("eval_method", ["run"] * len(r[key])), r[key]) if m == method],
+        for method in dict.fromkeys(m for r in evals for m in model_labels(r, len(r[key]))):
+            pts = [(r["step"], [v for m, v in zip(model_labels(r, len(r[key])), r[key]) if m == method],
                     r.get("final", False)) for r in evals]
             out[name][method] = (np.array([p[0] for p in pts]), np.array([np.mean(p[1]) for p in pts]),
                                  np.array([np.std(p[1]) for p in pts]), np.array([p[2] for p in pts]))

@@ -137,6 +137,13 @@ def exit_code(run: Callable[[], object]) -> int:
     return 0
 
 
+def model_labels(record: dict, n: int) -> list[str]:
+    """The models' labels in an evaluation record of ``metrics.jsonl``: their method (``dataset/method`` in a
+    program over several datasets), or ``run`` for an older record without them."""
+    methods = record.get("eval_method") or ["run"] * n
+    return [f"{d}/{m}" for d, m in zip(record["eval_dataset"], methods)] if "eval_dataset" in record else methods
+
+
 def plot_learning_curve(metrics_path: str, png_path: str) -> None:
     """From ``metrics.jsonl``: the training loss against step and, when the log holds evaluations, the normalised
     score and min-subdominance against step, one line per method (mean over its seeds, band from the lowest to
@@ -158,7 +165,7 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
             ("eval_normalized_score", "normalised score"), ("eval_min_subdominance", "min-subdominance vs demos")])]:
         steps = [r["step"] for r in evals]
         v = np.array([r[key] for r in evals], float)  # [evaluations, models]
-        names = evals[0].get("eval_method") or ["run"] * v.shape[1]
+        names = model_labels(evals[0], v.shape[1])
         final = [i for i, r in enumerate(evals) if r.get("final")]
         for name in dict.fromkeys(names):
             cols = [j for j, n in enumerate(names) if n == name]
