@@ -3,6 +3,7 @@ figure, and ``experiments/results/curves.md``, from the JSON files ``experiments
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -55,6 +56,47 @@ def stability(curve: dict) -> list[dict]:
     return rows
 
 
+POOL_KEYS = ("env", "dataset", "dataset_transitions", "dataset_seed", "episode_length", "steps", "context_len",
+             "embed_dim", "n_layers", "n_heads", "dropout", "learning_rate", "weight_decay", "warmup_steps",
+             "grad_clip", "batch_size", "lr_schedule", "ema_decay", "precision", "costs", "beta", "rtg_scale",
+             "target_return", "alpha_max", "critic_batch_size")  # what a pool's files share (an older file's
+# missing field: its default, which it ran with)
+
+
+def pooled(curves: dict) -> list[dict]:
+    """Seeds of one configuration pooled across curve files (``--seed``: more seeds of a curve, their own file):
+    per pool (files on the same data whose configs agree on :data:`POOL_KEYS`), method and evaluation step that
+    every file of that method has, the mean and the std over all its seeds."""
+    from minsubdt_jax.config import Config
+
+    default = dataclasses.asdict(Config())
+    pools = {}  # the shared config and the data's hash -> the files
+    for name, c in curves.items():
+        key = json.dumps([c["dataset"]["sha256"]] + [c["config"].get(k, default[k]) for k in POOL_KEYS])
+        pools.setdefault(key, []).append(name)
+    rows = []
+    for names in pools.values():
+        if len(names) < 2:
+            continue
+        by = {}  # method -> {step: [seed means]}, seeds counted once
+        for n in names:
+            for m in curves[n]["models"]:
+                if m["method"].endswith("(raw params)"):  # the averaged parameters only: the curves' own tables
+                    continue                               # have the raw ones
+                for step, v in zip(curves[n]["steps"], m["mean"]):
+                    if np.isfinite(v):
+                        by.setdefault(m["method"], {}).setdefault(step, {})[m["seed"]] = v
+        for method, steps in by.items():
+            most = max(len(v) for v in steps.values())
+            for step in sorted(steps):
+                v = np.array(list(steps[step].values()))
+                if len(v) == most:
+                    rows.append({"pool": " + ".join(sorted(names)), "method": method, "step": step, "seeds": len(v),
+                                 "mean": float(v.mean()), "std": float(v.std(ddof=1)), "min": float(v.min()),
+                                 "max": float(v.max())})
+    return rows
+
+
 def plot(curve: dict, png: str) -> None:
     import matplotlib
 
@@ -101,11 +143,22 @@ def report() -> str:
     lines = ["# Score curves", "",
              "Made by `python experiments/curves.py report` from `experiments/results/curves/*.json`;",
              "each file names the command that trained it. Scores are normalised (brax dynamics: our references).", ""]
-    for fn in sorted(os.listdir(RESULTS)) if os.path.isdir(RESULTS) else []:
-        if not fn.endswith(".json"):
-            continue
+    files = sorted(fn for fn in (os.listdir(RESULTS) if os.path.isdir(RESULTS) else []) if fn.endswith(".json"))
+    curves = {}
+    for fn in files:
         with open(os.path.join(RESULTS, fn)) as f:
-            curve = json.load(f)
+            curves[fn[:-5]] = json.load(f)
+    pool = pooled(curves)
+    if pool:
+        lines += ["## Seeds pooled across files", "",
+                  "Curves of one configuration run as several files (more seeds with `--seed`): at each step that "
+                  "every seed of a method reached, the mean ± std over all its seeds (each seed: the mean over its "
+                  "episodes).", "", "| curves | method | step | seeds | mean ± std | min – max |", "|---|---|---|---|---|---|"]
+        lines += [f"| {r['pool']} | {r['method']} | {r['step']} | {r['seeds']} | {r['mean']:.1f} ± {r['std']:.1f} | "
+                  f"{r['min']:.1f} – {r['max']:.1f} |" for r in pool]
+        lines.append("")
+    for fn in files:
+        curve = curves[fn[:-5]]
         c, ds = curve["config"], curve["dataset"]
         lines += [f"## {fn[:-5]}", "", f"![curve](curves/{fn[:-5]}.png)", ""]
         if curve.get("partial"):
