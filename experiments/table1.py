@@ -185,10 +185,12 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
                               if r["dataset"] == d and r["env"] == e), None) for d in DATASETS for e in ENVS}
     files = {}
     for row in rows:  # which recording of each dataset the runs used (the file name holds the recipe version)
-        ds = row["r"]["dataset"]
+        ds, ph = row["r"]["dataset"], row["r"].get("physics") or {}
         files.setdefault(f"{row['dataset']}/{row['env']}", set()).add(
-            (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"])))
-    files = {k: [{"file": f, "sha256": h, "cost_features": c} for f, h, c in sorted(v)] for k, v in files.items()}
+            (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"]),
+             ph.get("physics", "not recorded"), ph.get("dynamics", "not recorded")))
+    files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d} for f, h, c, p, d in sorted(v)]
+             for k, v in files.items()}
     episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
     out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
            "cost_rank_agreement": costs, "data_files": files,

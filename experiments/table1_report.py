@@ -120,8 +120,10 @@ def markdown(out: dict) -> str:
               "episodes, where the run recorded it) and their engineered cost features. A cell whose file is not "
               "today's `python -m minsubdt_jax.data` recording, or whose features are not today's "
               "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
-              "| dataset | env | file (sha256): cost features |", "|---|---|---|"]
-    lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}" for x in
+              "| dataset | env | file (sha256): cost features; evaluation physics, dynamics |", "|---|---|---|"]
+    lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}; "
+                                             f"{x.get('physics', 'not recorded')}, {x.get('dynamics', 'not recorded')}"
+                                             for x in
                                              out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
               for d in DATASETS for e in ENVS]
     lines += ["", "## Curves", "",
