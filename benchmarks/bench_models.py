@@ -30,14 +30,13 @@ def bench(preset: str, models: int, precision: str, steps: int, repeats: int) ->
     from minsubdt_jax.agents.base import init_seed_states, make_optimizer, make_train_chunk
     from minsubdt_jax.agents.dt.agent import make_dt_agent
     from minsubdt_jax.config import PRESETS
-    from minsubdt_jax.data import Trajectories, sampler_data
+    from minsubdt_jax.data import sampler_data
+
+    from bench_train_step import synthetic_dataset, time_chunk
 
     cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0, precision=precision)
-    rng = np.random.default_rng(0)
-    n, T, obs, act = 64, 1000, 17, 6
-    ds = Trajectories(rng.normal(size=(n, T, obs)).astype(np.float32),
-                      rng.uniform(-1, 1, (n, T, act)).astype(np.float32), rng.normal(size=(n, T)).astype(np.float32),
-                      np.full(n, T, np.int32), np.zeros(n, bool))
+    ds = synthetic_dataset()
+    obs, act, T = ds.obs_dim, ds.act_dim, ds.max_len
     mean, std = ds.state_stats()
     data = sampler_data(ds, ds.rewards, mean, std)
     per_model = ("returns_to_go", "rewards", "last_done")  # as program.stack_models stacks them
@@ -48,23 +47,15 @@ def bench(preset: str, models: int, precision: str, steps: int, repeats: int) ->
     chunk = make_train_chunk(agent, tx, cfg.batch_size, steps, seed_axis=True, data_axis=axis)
     t0 = time.perf_counter()
     compiled = chunk.lower(state, data).compile()
+    compile_s = time.perf_counter() - t0
     cost = compiled.cost_analysis()
     flops = (cost[0] if isinstance(cost, list) else cost or {}).get("flops")
-    chunk = compiled
-    state, losses = chunk(state, data)
-    jax.block_until_ready(losses)
-    compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        state, losses = chunk(state, data)
-        jax.block_until_ready(losses)
-        times.append(time.perf_counter() - t0)
+    state, losses, first_s, times = time_chunk(compiled, state, data, repeats)
     chunk_s = statistics.median(times)
     return {"preset": preset, "models": models, "precision": precision, "ms_per_step": 1e3 * chunk_s / steps,
             "model_steps_per_s": models * steps / chunk_s, "steps_per_s": steps / chunk_s,
             "gflop_per_step": flops / 1e9 if flops else None,
-            "tflop_per_s": (flops * steps / chunk_s / 1e12) if flops else None, "compile_s": compile_s,
+            "tflop_per_s": (flops * steps / chunk_s / 1e12) if flops else None, "compile_s": compile_s + first_s,
             "device": jax.devices()[0].device_kind, "backend": jax.default_backend(), "batch_size": cfg.batch_size,
             "finite_loss": bool(np.isfinite(np.asarray(losses)).all())}
 

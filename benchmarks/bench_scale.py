@@ -42,20 +42,18 @@ CONFIGS = {  # name -> (devices per process, processes, seeds, seed axis)
 
 def worker(preset: str, seeds: int, devices: int, steps: int, repeats: int, seed_axis: bool) -> dict:
     import jax
-    import numpy as np
 
     from minsubdt_jax.config import PRESETS
-    from minsubdt_jax.data import Trajectories, sampler_data
+    from minsubdt_jax.data import sampler_data
     from minsubdt_jax.parallel import make_mesh, replicate
     from minsubdt_jax.agents.base import init_seed_states, init_state, make_optimizer, make_train_chunk
     from minsubdt_jax.agents.dt.agent import make_dt_agent
 
     cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0)
-    rng = np.random.default_rng(0)
-    n, T, obs, act = 64, 1000, 17, 6
-    ds = Trajectories(rng.normal(size=(n, T, obs)).astype(np.float32),
-                      rng.uniform(-1, 1, (n, T, act)).astype(np.float32), rng.normal(size=(n, T)).astype(np.float32),
-                      np.full(n, T, np.int32), np.zeros(n, bool))
+    from bench_train_step import synthetic_dataset, time_chunk
+
+    ds = synthetic_dataset()
+    obs, act, T = ds.obs_dim, ds.act_dim, ds.max_len
     mean, std = ds.state_stats()
     data = sampler_data(ds, ds.rewards, mean, std)
     agent, tx = make_dt_agent(cfg, obs, act, T), make_optimizer(cfg)
@@ -63,16 +61,8 @@ def worker(preset: str, seeds: int, devices: int, steps: int, repeats: int, seed
     mesh = make_mesh(devices, cfg.batch_size)
     state, data = replicate((state, data), mesh)
     chunk = make_train_chunk(agent, tx, cfg.batch_size, steps, mesh, seed_axis=seed_axis)
-    t0 = time.perf_counter()
-    state, losses = chunk(state, data)
-    jax.block_until_ready(losses)
-    compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        state, losses = chunk(state, data)
-        jax.block_until_ready(losses)
-        times.append((time.perf_counter() - t0) / steps)
+    state, losses, compile_s, times = time_chunk(chunk, state, data, repeats)
+    times = [t / steps for t in times]
     return {"ms_per_step": 1e3 * statistics.median(times), "compile_s": compile_s, "mesh_devices": mesh.size,
             "processes": jax.process_count(), "seeds": seeds, "batch_size": cfg.batch_size}
 

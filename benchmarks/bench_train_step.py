@@ -90,6 +90,24 @@ def synthetic_dataset(n=64, T=1000, obs=17, act=6):
                         np.full(n, T, np.int32), np.zeros(n, bool))
 
 
+def time_chunk(chunk, state, data, repeats: int):
+    """Run ``chunk(state, data)`` once (compile + first run) and ``repeats`` more times; ``(state, losses,
+    compile_s, [seconds of each timed chunk])``."""
+    import jax
+
+    t0 = time.perf_counter()
+    state, losses = chunk(state, data)
+    jax.block_until_ready(losses)
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        state, losses = chunk(state, data)
+        jax.block_until_ready(losses)
+        times.append(time.perf_counter() - t0)
+    return state, losses, compile_s, times
+
+
 def timeit(fn, div=1):
     t0 = time.perf_counter()
     fn()
