@@ -29,7 +29,6 @@ import socket
 import statistics
 import subprocess
 import sys
-import time
 
 CONFIGS = {  # name -> (devices per process, processes, seeds, seed axis)
     "1 device": (1, 1, 1, True),
