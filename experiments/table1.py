@@ -58,7 +58,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
     ``costs`` (``--costs``) chooses the cost metrics; its results go to their own folder (:func:`variant`).
     ``whole_env``: an env's datasets train in one program (:func:`table1_units.plan_units`); ``overrides``:
-    config fields set on the preset (``precision``).
+    config fields set on the preset (``precision``: on the DT family's units only).
 
     In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
     seeds is one program: ``--method a,b,... --seeds S``, every (method, seed) a model vmapped in one jitted step
@@ -77,8 +77,9 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         names = [run_name(env, d, m, s) for d in dss for m in ms for s in range(first, first + n)]
         label = "+".join(ms) + f" {env}-{'+'.join(dss)} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
+        own = {k: v for k, v in overrides.items() if k != "precision" or ALL_METHODS[ms[0]].agent == "dt"}
         cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=",".join(dss), method=",".join(ms), seed=first,
-                                  seeds=n, physics=physics, costs=costs, **overrides,
+                                  seeds=n, physics=physics, costs=costs, **own,
                                   out=os.path.join(runs_root, variant(preset, costs),
                                                    f"{env}-{'+'.join(dss)}-{'+'.join(ms)}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
@@ -226,7 +227,7 @@ def main(argv=None) -> int:
     p.add_argument("--whole-env", action=argparse.BooleanOptionalAction, default=None,
                    help="train an env's datasets (all its methods x seeds) in one program (default: with --preset "
                    "paper, for a GPU)")
-    p.add_argument("--precision", default="f32", choices=["f32", "tf32", "bf16"], help="the DT's matmul precision")
+    p.add_argument("--precision", default="f32", choices=["f32", "tf32", "bf16"], help="the DT family's matmul precision (the critic agents' units stay f32)")
     a = p.parse_args(argv)
     from minsubdt_jax.config import PRESETS
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 
+from minsubdt_jax.config import SINGLE_DATASET_AGENTS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 
@@ -17,7 +18,8 @@ def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):
     method, seed)``), and the names of those with one. A unit is ``(first seed, datasets, env, methods, seeds)``:
     in each env x dataset, the methods of one agent missing the same seeds, a run of consecutive missing seeds
     each. With ``whole_env`` the env's datasets that miss the same seeds of the same methods are one unit
-    (``--dataset a,b,c``: issue 23's whole env in one program). The lowest missing seed of every cell goes first
+    (``--dataset a,b,c``: issue 23's whole env in one program), except for an agent that needs a program per
+    dataset (``config.SINGLE_DATASET_AGENTS``: AWR). The lowest missing seed of every cell goes first
     (stable: datasets, envs, methods)."""
     units, skipped = [], []
     for d in datasets:
@@ -32,10 +34,11 @@ def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):
             for (missing, _), ms in groups.items():
                 units += [(first, (d,), e, tuple(ms), n) for first, n in seed_runs(missing)]
     if whole_env:
-        merged = {}  # (env, methods, first, n) -> datasets, in the order asked
+        merged = {}  # (env, methods, first, n) -> datasets, in the order asked (AWR's datasets stay apart)
         for first, (d,), e, ms, n in units:
-            merged.setdefault((e, ms, first, n), []).append(d)
-        units = [(first, tuple(ds), e, ms, n) for (e, ms, first, n), ds in merged.items()]
+            alone = ALL_METHODS[ms[0]].agent in SINGLE_DATASET_AGENTS
+            merged.setdefault((e, ms, first, n) + ((d,) if alone else ()), []).append(d)
+        units = [(key[2], tuple(ds), key[0], key[1], key[3]) for key, ds in merged.items()]
     units.sort(key=lambda t: t[0])
     return units, skipped
 

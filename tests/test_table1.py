@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-BASE = {"minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc": 30.0, "cql": 20.0, "iql": 55.0, "minsubdt-iql": 45.0}
+BASE = {"awr": 10.0, "minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc": 30.0, "cql": 20.0, "iql": 55.0, "minsubdt-iql": 45.0}
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +67,11 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
         ("walker", "medium-replay", "minsubdt,dt", 0, 2, "walker-medium-replay-minsubdt+dt-s0-1", "bf16"),
         ("walker", "medium", "dt", 1, 1, "walker-medium-dt-s1", "bf16")]
     assert st["skipped"] == ["walker-medium-dt-s0"] and not st["failed"] and len(st["done"]) == 15
+    calls.clear()  # the critic agents' units are the same, AWR's one per dataset (its step reads every episode)
+    table1.run_sweep(methods=("iql", "awr"), seeds=(0,), **dict(kw, envs=("hopper",)))
+    assert [c[:3] for c in calls] == [("hopper", "medium,medium-replay", "iql"), ("hopper", "medium", "awr"),
+                                      ("hopper", "medium-replay", "awr")]
+    assert {c[-1] for c in calls} == {"f32"}  # --precision is the DT family's
     r = json.loads((res_dir / "hopper-medium-replay-dt-s1.json").read_text())
     assert r["config"]["dataset"] == "medium-replay" and r["config"]["method"] == "dt" and r["config"]["seed"] == 1
     assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model
