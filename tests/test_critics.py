@@ -162,6 +162,10 @@ def test_transitions_bootstrap_time_outs_not_terminations():
     # states are 0, 1, 2 (episode 0) and 4, 5, 6 (episode 1): (state, next state, done)
     assert seen[True] == {(0, 1, 0.0), (1, 2, 0.0), (2, None, 1.0), (4, 5, 0.0), (5, 6, 0.0)}
     assert seen[False] == seen[True] | {(6, None, 1.0)}
+    # an episode of weight 0 (another dataset's, in a program over several) gives no transition
+    data = sampler_data(d, np.zeros((2, 4)), np.zeros(1, np.float32), np.ones(1, np.float32))
+    b = sample_transitions(jax.random.PRNGKey(0), data.replace(weights=data.weights.at[0].set(0)), 1000)
+    assert set(np.asarray(b.states[:, 0]).astype(int)) == {4, 5}
 
 
 @pytest.mark.parametrize("name", AGENTS)
