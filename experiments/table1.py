@@ -4,6 +4,7 @@
     python experiments/table1.py run --seeds 0 --envs hopper --datasets medium
     python experiments/table1.py run --preset paper --envs walker --datasets medium   # one unit: 4 methods x 3 seeds
     python experiments/table1.py run --preset paper --envs walker     # one unit: 3 datasets x 4 methods x 3 seeds
+    python experiments/table1.py run --preset study --commit   # a long sweep: each finished unit's files committed
     python experiments/table1.py aggregate            # tables and plots from the results present
 
 Every run (env x dataset x method x seed) is one model; its compact result goes to
@@ -38,7 +39,7 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs)
-from table1_units import compact, per_seed_results, plan_units, run_name, seed_runs  # noqa: E402,F401
+from table1_units import commit_results, compact, per_seed_results, plan_units, run_name, seed_runs  # noqa: E402,F401
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -54,10 +55,11 @@ def variant(preset: str, costs: str | None = None) -> str:
 
 def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds=(0, 1, 2), runs_root="runs/table1",
               results_root=RESULTS, train_fn=None, log=print, physics="auto", costs=None, whole_env=False,
-              **overrides) -> dict:
+              on_unit=None, **overrides) -> dict:
     """Trains every missing run; returns ``{"done": [...], "skipped": [...], "failed": [...]}`` (run names).
     ``costs`` (``--costs``) chooses the cost metrics; its results go to their own folder (:func:`variant`).
-    ``whole_env``: an env's datasets train in one program (:func:`table1_units.plan_units`); ``overrides``:
+    ``whole_env``: an env's datasets train in one program (:func:`table1_units.plan_units`); ``on_unit(paths,
+    summary)`` is called with each finished unit's result files (``--commit`` commits them); ``overrides``:
     config fields set on the preset (``precision``: on the DT family's units only).
 
     In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
@@ -90,7 +92,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
             log(traceback.format_exc())
             status["failed"] += names
             continue
-        scores = []
+        scores, written = [], []
         for j, name in enumerate(names):
             one = per_seed_results(res, j)
             d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
@@ -99,9 +101,12 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
             with open(dst + ".tmp", "w") as f:
                 json.dump(compact(one), f)
             os.replace(dst + ".tmp", dst)  # a result file is complete or absent
+            written.append(dst)
             scores.append(f"{one.get('eval', {}).get('normalized_score_mean', float('nan')):.1f}")
         log(f"[{i + 1}/{len(todo)}] {label}: normalised {' '.join(scores)} ({time.time() - t0:.0f} s)")
         status["done"] += names
+        if on_unit is not None:
+            on_unit(written, f"{label}: normalised {' '.join(scores)}")
     return status
 
 
@@ -227,7 +232,10 @@ def main(argv=None) -> int:
     p.add_argument("--whole-env", action=argparse.BooleanOptionalAction, default=None,
                    help="train an env's datasets (all its methods x seeds) in one program (default: with --preset "
                    "paper, for a GPU)")
-    p.add_argument("--precision", default="f32", choices=["f32", "tf32", "bf16"], help="the DT family's matmul precision (the critic agents' units stay f32)")
+    p.add_argument("--precision", default="f32", choices=["f32", "tf32", "bf16"],
+                   help="the DT family's matmul precision (the critic agents' units stay f32)")
+    p.add_argument("--commit", action="store_true", help="git-commit each finished unit's result files, with the "
+                   "command that resumes the sweep in the message")
     a = p.parse_args(argv)
     from minsubdt_jax.config import PRESETS
 
@@ -244,8 +252,11 @@ def main(argv=None) -> int:
     failed = []
     if a.action in ("all", "run"):
         whole = a.preset == "paper" if a.whole_env is None else a.whole_env
+        resume = "python experiments/table1.py " + " ".join(argv if argv is not None else sys.argv[1:])
+        on_unit = (lambda paths, what: commit_results(paths, f"Table 1 ({a.preset}): {what}; resume: {resume}")
+                   ) if a.commit else None
         st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics, costs=a.costs,
-                       whole_env=whole, **({"precision": a.precision} if a.precision != "f32" else {}))
+                       whole_env=whole, on_unit=on_unit, **({"precision": a.precision} if a.precision != "f32" else {}))
         print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
         failed = st["failed"]
     if a.action in ("all", "aggregate"):

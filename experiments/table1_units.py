@@ -4,6 +4,7 @@ them, and a program's results split into one compact file per model (``experimen
 from __future__ import annotations
 
 import os
+import subprocess
 
 from minsubdt_jax.config import SINGLE_DATASET_AGENTS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
@@ -83,3 +84,14 @@ def per_seed_results(res: dict, i: int) -> dict:
     if "eval_per_seed" in res:
         out["eval"] = res["eval_per_seed"][i]
     return out
+
+
+def commit_results(paths: list[str], message: str) -> None:
+    """``git commit`` exactly ``paths`` (a finished unit's result files) with ``message``, in the repository that
+    holds them, leaving any other change in the work tree as it is (``table1.py run --commit``: a long sweep's
+    results land in the history as they finish)."""
+    cwd = os.path.dirname(os.path.abspath(paths[0]))
+    rel = [os.path.relpath(os.path.abspath(p), cwd) for p in paths]
+    subprocess.run(["git", "add", "--", *rel], cwd=cwd, check=True, capture_output=True)
+    subprocess.run(["git", "commit", "-q", "-m", message, "--", *rel], cwd=cwd, check=True, capture_output=True)
+

@@ -77,6 +77,23 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model
 
 
+def test_commit_results_commits_only_the_unit_files(table1, tmp_path):
+    import subprocess
+
+    git = lambda *a: subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True, text=True).stdout  # noqa
+    git("init", "-q")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "--allow-empty", "-m", "root")
+    (tmp_path / "res").mkdir()
+    (tmp_path / "res" / "a.json").write_text("{}")
+    (tmp_path / "other.txt").write_text("work in progress")
+    git("config", "user.name", "t")
+    git("config", "user.email", "t@t")
+    table1.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
+    assert git("log", "-1", "--format=%s").strip() == "Table 1 (smoke): x; resume: python ..."
+    assert git("show", "--name-only", "--format=").split() == ["res/a.json"]
+    assert "other.txt" in git("status", "--porcelain")  # left as it was
+
+
 def test_seed_runs_groups_consecutive_seeds(table1):
     assert table1.seed_runs([2, 0, 1]) == [(0, 3)]
     assert table1.seed_runs({0, 2, 3, 5}) == [(0, 1), (2, 2), (5, 1)]
