@@ -2,6 +2,7 @@
 
     python experiments/curves.py run --env walker --dataset medium --model cpu --steps 20000 --eval-every 2000
     python experiments/curves.py run --env hopper --dataset medium-replay --model paper --context 10
+    python experiments/curves.py run --env walker --model paper --steps 10000 --warmup 500 --lr-schedule cosine
     python experiments/curves.py report                  # every curve under experiments/results/curves/
     python experiments/curves.py ties                    # how many demos share the surrogate return -K beta
 
@@ -40,6 +41,7 @@ def name_of(a) -> str:
     extra += f"-costs-{a.costs.replace(',', '+')}" if a.costs else ""
     extra += "" if a.methods == DEFAULT_METHODS else f"-{a.methods.replace(',', '+')}"
     extra += f"-seed{a.seed}" if a.seed else ""
+    extra += f"-wu{a.warmup}" if a.warmup is not None else ""
     return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
 
@@ -52,7 +54,7 @@ def run(a) -> dict:
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
-                              out=out)
+                              out=out, **({} if a.warmup is None else {"warmup_steps": a.warmup}))
     res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)
@@ -167,6 +169,8 @@ def main(argv=None) -> int:
     p.add_argument("--ema", type=float, default=0.0, help="EMA decay of the parameters (0: off); the raw "
                    "parameters are scored beside the average")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
+    p.add_argument("--warmup", type=int, default=None, help="warm-up steps of the rate (default: the model's "
+                   "preset's: cpu 500, paper 10k)")
     p.add_argument("--runs-root", default="runs/curves")
     a = p.parse_args(argv)
     if a.action == "ties":
