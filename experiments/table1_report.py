@@ -72,9 +72,15 @@ def markdown(out: dict) -> str:
              f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
              f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
              *([] if out["preset"] == "paper" else [
+                 "The `study` preset: the `cpu` model with a cosine decay over 10k steps and an average of the "
+                 "parameters, chosen from score curves on this CPU. **Provisional**: [docs/convergence.md]"
+                 "(../../docs/convergence.md) says which cells' curves have flattened at it (and which have not) "
+                 "and how it differs from the paper's configuration. See *Data* below for the dataset files and "
+                 "cost features these runs used.", ""]
+               if out["preset"] == "study" else [
                  f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
-                 "(README, *What the presets are for*); the `paper` preset is. See *Data* below for the dataset "
-                 "files and cost features these runs used.", ""]),
+                 "(README, *What the presets are for*); the `study` and `paper` presets are. See *Data* below for "
+                 "the dataset files and cost features these runs used.", ""]),
              "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
 
     def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"
