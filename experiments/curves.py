@@ -33,6 +33,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from curves_report import RESULTS, plot, report  # noqa: E402
 DEFAULT_METHODS = "minsubdt,dt"
+DEFAULT_STEPS = 20_000
 MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT and optimiser it takes
 
 
@@ -42,6 +43,7 @@ def name_of(a) -> str:
     extra += "" if a.methods == DEFAULT_METHODS else f"-{a.methods.replace(',', '+')}"
     extra += f"-seed{a.seed}" if a.seed else ""
     extra += f"-wu{a.warmup}" if a.warmup is not None else ""
+    extra += f"-{a.steps}steps" if a.steps != DEFAULT_STEPS else ""  # a cosine run's schedule ends at its steps
     return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
 
@@ -160,7 +162,7 @@ def main(argv=None) -> int:
     p.add_argument("--context", type=int, default=20)
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--seed", type=int, default=0, help="the first seed (more seeds of a curve: its own file)")
-    p.add_argument("--steps", type=int, default=20_000)
+    p.add_argument("--steps", type=int, default=DEFAULT_STEPS)
     p.add_argument("--eval-every", type=int, default=2000)
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--chunk-steps", type=int, default=500)
