@@ -31,6 +31,7 @@ def bench(preset: str, models: int, precision: str, steps: int, repeats: int) ->
     from minsubdt_jax.agents.dt.agent import make_dt_agent
     from minsubdt_jax.config import PRESETS
     from minsubdt_jax.data import sampler_data
+    from minsubdt_jax.program import PER_MODEL_FIELDS
 
     from bench_train_step import synthetic_dataset, time_chunk
 
@@ -39,7 +40,7 @@ def bench(preset: str, models: int, precision: str, steps: int, repeats: int) ->
     obs, act, T = ds.obs_dim, ds.act_dim, ds.max_len
     mean, std = ds.state_stats()
     data = sampler_data(ds, ds.rewards, mean, std)
-    per_model = ("returns_to_go", "rewards", "last_done")  # as program.stack_models stacks them
+    per_model = PER_MODEL_FIELDS  # what program.stack_models stacks for models on one dataset
     data = data.replace(**{k: jnp.stack([getattr(data, k) * (1 + 0.01 * i) for i in range(models)]) for k in per_model})
     axis = jax.tree.map(lambda _: None, data).replace(**{k: 0 for k in per_model})
     agent, tx = make_dt_agent(cfg, obs, act, T), make_optimizer(cfg)

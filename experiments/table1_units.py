@@ -94,4 +94,3 @@ def commit_results(paths: list[str], message: str) -> None:
     rel = [os.path.relpath(os.path.abspath(p), cwd) for p in paths]
     subprocess.run(["git", "add", "--", *rel], cwd=cwd, check=True, capture_output=True)
     subprocess.run(["git", "commit", "-q", "-m", message, "--", *rel], cwd=cwd, check=True, capture_output=True)
-

@@ -202,17 +202,19 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     train_seconds = time.time() - t0
 
     describe = lambda m: {"name": m.name, "label": m.label, "agent": m.agent}  # noqa: E731
-    results = {"config": dataclasses.asdict(cfg), "dataset": per_model[0].summary(cfg.env),
+    summaries = {id(p): p.summary(cfg.env) for p in preps.values()}  # once per prepared data, not per model
+    own = [summaries[id(p)] for p in per_model]
+    results = {"config": dataclasses.asdict(cfg), "dataset": own[0],
                "references": references_record(cfg.env, dynamics),
                "physics": {**physics_record(physics, dynamics, cfg.physics_threads), "dynamics_from": dynamics_how},
                "platform": platform(), "seeds": seeds,
-               "models": [dict(zip(("dataset",) * (len(mo) == 3) + ("method", "seed"), mo[:-2] + (mo[-2].name, mo[-1])))
+               "models": [{**({"dataset": mo[0]} if len(mo) == 3 else {}), "method": mo[-2].name, "seed": mo[-1]}
                           for mo in models],
                "train": {"steps": step, "steps_this_run": step - start, "seconds_this_run": train_seconds}}
     results.update({"method": describe(methods[0])} if len(methods) == 1 else {"methods": [describe(m) for m in methods]})
     if len(preps) > 1:  # the models' own data summaries (min-subdominance on their features, learned costs)
-        results["dataset_per_model"] = [{k: v for k, v in p.summary(cfg.env).items()
-                                         if k != "costs_sample" or len(names) > 1} for p in per_model]
+        results["dataset_per_model"] = [{k: v for k, v in d.items() if k != "costs_sample" or len(names) > 1}
+                                        for d in own]
     if cfg.eval_episodes:
         te = time.time()
         per = evaluate(eval_params(state), cfg.eval_episodes)
@@ -230,7 +232,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
             results["eval_by_method"] = summary
         log(eval_record(step, per, final=True))
         for name, e in summary.items() if verbose else ():
-            demo = per_model[by_method[name][0]].summary(cfg.env)
+            demo = own[by_method[name][0]]
             over = (f"{cfg.eval_episodes} episodes" if len(seeds) == 1
                     else f"{len(seeds)} seeds x {cfg.eval_episodes} episodes")
             print(f"eval {name}: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
