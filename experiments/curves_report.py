@@ -52,8 +52,25 @@ def stability(curve: dict) -> list[dict]:
                      "checkpoint_std": float(M.std(1, ddof=1).mean()), "episode_se": float(np.sqrt((se ** 2).mean())),
                      "last_third_mean": float(avg.mean()),
                      "last_third_between_seeds": float(avg.std(ddof=1)) if len(avg) > 1 else float("nan"),
-                     "first_to_last": float(M[:, -1].mean() - M[:, 0].mean())})
+                     "first_to_last": float(M[:, -1].mean() - M[:, 0].mean()),
+                     **dict(zip(("fitted_change", "fitted_change_se"), trend(steps[last][keep], M)))})
     return rows
+
+
+def trend(steps: np.ndarray, scores: np.ndarray) -> tuple[float, float]:
+    """The change of a method's score over ``steps`` estimated from every checkpoint, not from two: a least-squares
+    line with one intercept per seed and a common slope, fitted to ``scores`` ``[S, E]`` (seed x evaluation).
+    Returns the slope times the span of ``steps`` and its standard error (residual variance over S*E - S - 1
+    degrees of freedom). With one seed it is an ordinary straight-line fit; balanced, the slope is that of the
+    mean curve."""
+    x = np.asarray(steps, float) - np.mean(steps)
+    y = scores - scores.mean(1, keepdims=True)
+    sxx = scores.shape[0] * (x ** 2).sum()
+    b = float((y * x).sum() / sxx)
+    dof = scores.size - scores.shape[0] - 1
+    se = float(np.sqrt(((y - b * x) ** 2).sum() / dof / sxx)) if dof > 0 else float("nan")
+    span = float(np.ptp(steps))
+    return b * span, se * span
 
 
 POOL_KEYS = ("env", "dataset", "dataset_transitions", "dataset_seed", "episode_length", "steps", "context_len",
@@ -179,13 +196,17 @@ def report() -> str:
         if st:
             lines += ["", "Over the last third of the curve: how much one seed's score moves from checkpoint to checkpoint "
                       "(std over its evaluations, mean over seeds) against one evaluation's episode noise, and the "
-                      "score averaged over those checkpoints per seed:", "",
+                      "score averaged over those checkpoints per seed; the change over the third as the last "
+                      "evaluation minus the first (3-seed means), and as a line fitted to every checkpoint of every "
+                      "seed (`curves_report.trend`: one intercept per seed, ± its standard error). Flat: the fitted "
+                      "change is within ±3 points (issue 25's criterion).", "",
                       "| method | evaluations (from step) | checkpoint-to-checkpoint std | episode SE | "
-                      "last-third average, mean ± std over seeds | last minus first of the third |",
-                      "|---|---|---|---|---|---|"]
+                      "last-third average, mean ± std over seeds | last minus first of the third | "
+                      "fitted change ± SE | flat |", "|---|---|---|---|---|---|---|---|"]
             lines += [f"| {r['method']} | {r['evaluations']} (from {r['from_step']}) | {r['checkpoint_std']:.1f} | "
                       f"{r['episode_se']:.1f} | {r['last_third_mean']:.1f} ± {r['last_third_between_seeds']:.1f} | "
-                      f"{r['first_to_last']:+.1f} |" for r in st]
+                      f"{r['first_to_last']:+.1f} | {r['fitted_change']:+.1f} ± {r['fitted_change_se']:.1f} | "
+                      f"{'yes' if abs(r['fitted_change']) <= 3 else 'no'} |" for r in st]
         lines.append("")
     text = "\n".join(lines) + "\n"
     with open(os.path.join(HERE, "results", "curves.md"), "w") as f:
