@@ -4,7 +4,8 @@
     python experiments/curves.py run --env hopper --dataset medium-replay --model paper --context 10
     python experiments/curves.py run --env walker --model paper --steps 10000 --warmup 500 --lr-schedule cosine
     python experiments/curves.py report                  # every curve under experiments/results/curves/
-    python experiments/curves.py ties                    # how many demos share the surrogate return -K beta
+    python experiments/curves.py ties                    # demos sharing the surrogate return -K beta: results/ties.md
+    python experiments/curves.py ties --cells walker:medium --cost-sets default x_velocity,energy   # per cost set
 
 ``run`` trains ``--methods`` (default MinSubDT and DT) x ``--seeds`` models of one ``--model`` size (``cpu``: the
 cpu preset's 64 x 2 DT, lr 3e-4, warm-up 500; ``paper``: the DT paper's 128 x 3, lr 1e-4, warm-up 10k) in one
@@ -124,30 +125,54 @@ def collect(run_dir: str, res: dict) -> dict:
             "steps": [r["step"] for r in evals], "episodes": [r["eval_episodes"] for r in evals], "models": models}
 
 
-def ties(cells=(("walker", "medium"), ("hopper", "medium-replay"), ("halfcheetah", "medium-expert")),
-         beta: float = 1.0) -> list[dict]:
-    """The demos whose min-subdominance (eq. 2, leave-one-out, engineered costs) is exactly K beta: with alpha >= 0
-    minimised, a demo no better than the others' mean on a feature gets alpha = 0 there, so every demo at or below
-    the mean on all features shares one surrogate return, whatever its true return."""
+CELLS = "walker:medium,hopper:medium-replay,halfcheetah:medium-expert"
+
+
+def ties(cells: str = CELLS, cost_sets=(None,), beta: float = 1.0, alpha_max=None) -> list[dict]:
+    """The demos whose min-subdominance (eq. 2, leave-one-out) is exactly K beta, per ``env:dataset`` cell and cost
+    set (None: the env's engineered costs): with alpha >= 0 minimised, a demo no better than the others' mean on a
+    feature gets alpha = 0 there (a cap ``alpha_max`` leaves it there), so every demo at or below the mean on all
+    features shares one surrogate return, whatever its true return. Also: the share of the top-quartile-return demos
+    that are tied, and how well -min-subdominance ranks the true return over all demos and over the untied ones.
+    Writes ``experiments/results/ties.md``."""
     from minsubdt_jax.costs import engineered_costs, spearman
     from minsubdt_jax.data import resolve_dataset
     from minsubdt_jax.subdominance import min_subdominance
 
     rows = []
-    for env, ds in cells:
+    for env, ds in (c.split(":") for c in cells.split(",")):
         f = resolve_dataset(env, ds, verbose=False)
         d = f.data
-        F = np.asarray(engineered_costs(env, d.observations, d.lengths, 1000, terminated=d.terminals))
-        ms = np.asarray(min_subdominance(F, F, beta, leave_one_out=True).value)
-        tie = np.isclose(ms, F.shape[1] * beta)
-        rows.append({"env": env, "dataset": ds, "file": os.path.basename(f.path), "sha256": f.sha256,
-                     "episodes": d.num_trajectories, "K": F.shape[1], "tied_share": float(tie.mean()),
-                     "tied_return_min": float(d.returns[tie].min()), "tied_return_max": float(d.returns[tie].max()),
-                     "spearman_all": spearman(-ms, d.returns)})
-        r = rows[-1]
-        print(f"{env} {ds} ({r['file']}, {r['episodes']} episodes, K={r['K']}): {100 * r['tied_share']:.1f} % of the "
-              f"demos at min-subdominance K*beta, true returns {r['tied_return_min']:.1f} .. "
-              f"{r['tied_return_max']:.1f}; Spearman(-ms, return) {r['spearman_all']:.3f}", flush=True)
+        top = d.returns >= np.quantile(d.returns, 0.75)
+        for costs in cost_sets:
+            F = np.asarray(engineered_costs(env, d.observations, d.lengths, 1000, terminated=d.terminals,
+                                            actions=d.actions, costs=costs))
+            ms = np.asarray(min_subdominance(F, F, beta, leave_one_out=True, alpha_max=alpha_max).value)
+            tie = np.isclose(ms, F.shape[1] * beta)
+            rows.append({"env": env, "dataset": ds, "file": os.path.basename(f.path), "sha256": f.sha256,
+                         "costs": costs or "default", "episodes": d.num_trajectories, "K": F.shape[1],
+                         "tied_share": float(tie.mean()), "tied_return_min": float(d.returns[tie].min()),
+                         "tied_return_max": float(d.returns[tie].max()), "return_median": float(np.median(d.returns)),
+                         "top_quartile_tied": float(tie[top].mean()), "spearman_all": spearman(-ms, d.returns),
+                         "spearman_untied": spearman(-ms[~tie], d.returns[~tie])})
+            r = rows[-1]
+            print(f"{env} {ds} ({r['file']}, {r['episodes']} episodes, costs {r['costs']}, K={r['K']}): "
+                  f"{100 * r['tied_share']:.1f} % of the demos at min-subdominance K*beta, true returns "
+                  f"{r['tied_return_min']:.1f} .. {r['tied_return_max']:.1f} (median of all {r['return_median']:.1f}); "
+                  f"{100 * r['top_quartile_tied']:.1f} % of the top quartile tied; Spearman(-ms, return) "
+                  f"{r['spearman_all']:.3f}, among the untied {r['spearman_untied']:.3f}", flush=True)
+    lines = ["# The tie at min-subdominance K beta", "",
+             f"`{' '.join(['python experiments/curves.py', *sys.argv[1:]])}` (beta {beta:g}, leave-one-out): per cell "
+             "and cost set, the share of demos tied at exactly K beta, their true returns against the median demo's, "
+             "the share of the top-quartile-return demos among them, and Spearman(-min-subdominance, return).", "",
+             "| cell | data (sha256) | costs | K | tied | tied returns | median return | top quartile tied | "
+             "Spearman all | Spearman untied |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {r['env']} {r['dataset']} | {r['episodes']} episodes ({r['sha256'][:12]}) | {r['costs']} | "
+              f"{r['K']} | {100 * r['tied_share']:.1f} % | {r['tied_return_min']:.0f} .. {r['tied_return_max']:.0f} | "
+              f"{r['return_median']:.0f} | {100 * r['top_quartile_tied']:.1f} % | {r['spearman_all']:.3f} | "
+              f"{r['spearman_untied']:.3f} |" for r in rows]
+    with open(os.path.join(HERE, "results", "ties.md"), "w") as fh:
+        fh.write("\n".join(lines) + "\n")
     return rows
 
 
@@ -174,9 +199,13 @@ def main(argv=None) -> int:
     p.add_argument("--warmup", type=int, default=None, help="warm-up steps of the rate (default: the model's "
                    "preset's: cpu 500, paper 10k)")
     p.add_argument("--runs-root", default="runs/curves")
+    p.add_argument("--cells", default=CELLS, help="ties: env:dataset,...")
+    p.add_argument("--cost-sets", nargs="+", default=["default"], help="ties: cost sets (comma-separated metrics; "
+                   "default: the env's engineered costs)")
+    p.add_argument("--alpha-max", type=float, default=None, help="ties: a cap on alpha")
     a = p.parse_args(argv)
     if a.action == "ties":
-        ties()
+        ties(a.cells, [None if c == "default" else c for c in a.cost_sets], alpha_max=a.alpha_max)
         return 0
     if a.action == "run":
         run(a)

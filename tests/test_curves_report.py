@@ -10,7 +10,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def test_trend_is_the_seed_fixed_effects_least_squares_slope():
-    spec = importlib.util.spec_from_file_location("curves_report", os.path.join(ROOT, "experiments", "curves_report.py"))
+    path = os.path.join(ROOT, "experiments", "curves_report.py")
+    spec = importlib.util.spec_from_file_location("curves_report", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     steps = np.array([7000.0, 8000.0, 9000.0, 10000.0])
