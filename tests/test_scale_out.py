@@ -178,7 +178,11 @@ def test_datasets_in_one_program_equal_single_dataset_runs(single_runs, small_da
         _, params_1 = _params(run_dir)
         for a, b in zip(params, params_1):
             np.testing.assert_allclose(a[i], b[0], rtol=1e-2, atol=ADAM_NOISE)
-        np.testing.assert_allclose(losses[:, i], _losses(run_dir)[:, 0], rtol=1e-5)
+        # the first chunk's loss to float32 rounding; the second is the loss of parameters already apart by the Adam
+        # noise above, in a program whose episodes are padded to the longer dataset's horizon (other sums): 1.7e-5
+        # relative on an AVX-512 CPU (2026-12-02), so 1e-4 here
+        np.testing.assert_allclose(losses[0, i], _losses(run_dir)[0, 0], rtol=1e-5)
+        np.testing.assert_allclose(losses[:, i], _losses(run_dir)[:, 0], rtol=1e-4)
         assert res["dataset_per_model"][i]["sha256"] == single["dataset"]["sha256"]
         ev = res["eval_per_seed"][i]  # scored against its own demos: the same min-subdominance as alone
         np.testing.assert_allclose(ev["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
