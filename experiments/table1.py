@@ -38,7 +38,7 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
-                           markdown, plot_costs)
+                           markdown, plot_costs, versus_dt)
 from table1_units import commit_results, compact, per_seed_results, plan_units, run_name, seed_runs  # noqa: E402,F401
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
@@ -198,7 +198,8 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
     files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d} for f, h, c, p, d in sorted(v)]
              for k, v in files.items()}
     episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
-    out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table, "averages": averages, "dataset_score": demo,
+    out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table,
+           "averages": averages, "versus_dt": versus_dt(table), "dataset_score": demo,
            "cost_rank_agreement": costs, "data_files": files,
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, **PUBLISHED_BASELINES[d, e])
                                               for (d, e), v in PUBLISHED.items()}}

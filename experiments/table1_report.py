@@ -63,6 +63,56 @@ def _cell(entry) -> str:
     return f"{entry['mean']:.1f} ± {entry['std']:.1f} ({entry['n_seeds']})"
 
 
+def versus_dt(table: dict, methods=("minsubdt", "minsubdt-learned")) -> dict:
+    """Per cell (``"dataset/env"``) and MinSubDT column of ``table`` (:func:`table1.aggregate`'s, population std over
+    n seeds): ``{"diff": mean - DT's mean, "se": ..., "verdict": ...}``. The standard error is Welch's,
+    sqrt(s_m^2 / n_m + s_dt^2 / n_dt) with the seeds' sample variances (s^2 = std^2 n / (n - 1)); the verdict is
+    "behind" or "ahead" where |diff| > 2 se, "level" where it is not, and "–" (no verdict) with fewer than 2 seeds
+    on either side. Cells without a DT result or without the column are left out."""
+    out = {}
+    for key, row in table.items():
+        dt = row.get("dt")
+        for m in methods:
+            if dt is None or m not in row:
+                continue
+            a = row[m]
+            diff = a["mean"] - dt["mean"]
+            if min(a["n_seeds"], dt["n_seeds"]) < 2:
+                out.setdefault(key, {})[m] = {"diff": diff, "se": None, "verdict": "–"}
+                continue
+            se = float(np.sqrt(a["std"] ** 2 / (a["n_seeds"] - 1) + dt["std"] ** 2 / (dt["n_seeds"] - 1)))
+            verdict = "level" if abs(diff) <= 2 * se else ("behind" if diff < 0 else "ahead")
+            out.setdefault(key, {})[m] = {"diff": diff, "se": se, "verdict": verdict}
+    return out
+
+
+def _versus_lines(vs: dict) -> list[str]:
+    """The report's section on where MinSubDT is behind DT, from :func:`versus_dt`."""
+    methods = ("minsubdt", "minsubdt-learned")
+    lines = ["", "## Where MinSubDT is behind DT, and by how much", "",
+             "Each MinSubDT column's seed mean minus DT's, ± the standard error of that difference (Welch, over the "
+             "seeds), and the verdict: *behind* or *ahead* where the difference exceeds two standard errors, "
+             "*level* where it does not (with 3 seeds that is a weak test: a level cell may still differ).", "",
+             "| dataset | env | " + " | ".join(f"{METHOD_NAMES[m]} − DT" for m in methods) + " |", "|---|---|---|---|"]
+
+    def fmt(v):
+        if v is None:
+            return "–"
+        return f"{v['diff']:+.1f}" + ("" if v["se"] is None else f" ± {v['se']:.1f}") + f": {v['verdict']}"
+
+    lines += [f"| {d} | {e} | " + " | ".join(fmt(vs.get(f"{d}/{e}", {}).get(m)) for m in methods) + " |"
+              for d in DATASETS for e in ENVS]
+    for m in methods:
+        got = [(k, v[m]) for k, v in vs.items() if m in v and v[m]["verdict"] != "–"]
+        if got:
+            behind = [f"{k.split('/')[1]} {k.split('/')[0]} ({v['diff']:+.1f})" for k, v in got
+                      if v["verdict"] == "behind"]
+            lines.append(f"\n{METHOD_NAMES[m]}: behind DT in {len(behind)} of {len(got)} cells with ≥ 2 seeds each"
+                         + (": " + ", ".join(behind) if behind else "") + f"; mean difference "
+                         f"{np.mean([v['diff'] for _, v in got]):+.1f} over those cells.")
+    return lines
+
+
 def markdown(out: dict) -> str:
     methods = columns(out["table"])
     cols = [METHOD_NAMES[m] for m in methods]
@@ -95,6 +145,7 @@ def markdown(out: dict) -> str:
         lines.append(f"| **average ({label})** | | | " + " | ".join(
             "–" if av.get(m, {}).get("mean") is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
             for m in methods) + " |")
+    lines += _versus_lines(out.get("versus_dt", versus_dt(out["table"])))
     lines += ["", "## Better than demonstrated?", "",
               "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
               "(none above it, one below), "

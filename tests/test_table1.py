@@ -192,3 +192,28 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path):
     assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
                     "medium-replay/walker": "table1_curves/smoke-walker-medium-replay.png"}
     assert (tmp_path / "agg" / pngs["medium/walker"]).stat().st_size > 1000
+
+
+def test_versus_dt_is_welchs_difference_with_a_two_se_verdict(table1):
+    from scipy.stats import ttest_ind
+
+    scores = {"medium/hopper": {"minsubdt": [40.0, 42.0, 47.0], "minsubdt-learned": [50.0, 55.0, 52.0],
+                                "dt": [50.0, 50.0, 53.0]},
+              "medium/walker": {"minsubdt": [30.0, 60.0], "dt": [10.0]}, "medium-replay/hopper": {"bc": [1.0, 2.0]}}
+    table = {k: {m: {"mean": float(np.mean(s)), "std": float(np.std(s)), "n_seeds": len(s),
+                     "better_than_mean_demo_share": 0.5, "rollout_min_subdominance": 1.0} for m, s in row.items()}
+             for k, row in scores.items()}
+    vs = table1.versus_dt(table)
+    for m in ("minsubdt", "minsubdt-learned"):  # Welch's t is diff / se
+        ref = ttest_ind(scores["medium/hopper"][m], scores["medium/hopper"]["dt"], equal_var=False).statistic
+        v = vs["medium/hopper"][m]
+        assert v["diff"] / v["se"] == pytest.approx(ref, rel=1e-12)
+    assert vs["medium/hopper"]["minsubdt"]["diff"] == pytest.approx(-8.0)
+    assert vs["medium/hopper"]["minsubdt"]["verdict"] == "behind"  # t = -3.5
+    assert vs["medium/hopper"]["minsubdt-learned"]["verdict"] == "level"  # t = 0.8
+    assert vs["medium/walker"] == {"minsubdt": {"diff": 35.0, "se": None, "verdict": "–"}}  # DT has 1 seed
+    assert "medium-replay/hopper" not in vs
+    md = table1.markdown({"preset": "study", "table": table, "averages": {}, "dataset_score": {},
+                          "cost_rank_agreement": {}})
+    assert "| medium | hopper | -8.0 ± 2.3: behind | +1.3 ± 1.8: level |" in md
+    assert "behind DT in 1 of 1 cells with ≥ 2 seeds each: hopper medium (-8.0)" in md
