@@ -145,6 +145,11 @@ def markdown(out: dict) -> str:
         lines.append(f"| **average ({label})** | | | " + " | ".join(
             "–" if av.get(m, {}).get("mean") is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
             for m in methods) + " |")
+    absent = [METHOD_NAMES[m] for m in CRITIC_METHODS if not m.startswith("minsubdt-") and m not in methods]
+    if absent:
+        lines += ["", f"Critic agents without a result at `{out['preset']}` (every cell '–'): {', '.join(absent)}. "
+                  "One gets a column once its score curve flattens within ~10 CPU-minutes per model here (issue 25); "
+                  "the others wait for a GPU. Their speeds and curves: [docs/critics.md](../../docs/critics.md)."]
     lines += _versus_lines(out.get("versus_dt", versus_dt(out["table"])))
     lines += ["", "## Better than demonstrated?", "",
               "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "

@@ -217,3 +217,4 @@ def test_versus_dt_is_welchs_difference_with_a_two_se_verdict(table1):
                           "cost_rank_agreement": {}})
     assert "| medium | hopper | -8.0 ± 2.3: behind | +1.3 ± 1.8: level |" in md
     assert "behind DT in 1 of 1 cells with ≥ 2 seeds each: hopper medium (-8.0)" in md
+    assert "without a result at `study` (every cell '–'): CQL, BEAR, BRAC-v, AWR, IQL, TD3+BC." in md
