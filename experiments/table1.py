@@ -1,4 +1,4 @@
-"""The seed's Table 1 on our MJX datasets: MinSubDT (engineered / learned costs), DT (true returns) and BC.
+"""The seed's Table 1 on our recorded datasets: MinSubDT (engineered / learned costs), DT (true returns) and BC.
 
     python experiments/table1.py                      # run what is missing (cpu preset, 3 seeds), then aggregate
     python experiments/table1.py run --seeds 0 --envs hopper --datasets medium
@@ -128,22 +128,27 @@ def _methods_of(run_dir: str, prefix: str) -> list[str]:
     return names if names and all(n in ALL_METHODS for n in names) else []
 
 
-def plot_cell_curves(preset: str, runs_root: str, out_root: str) -> dict:
-    """Per env x dataset with training runs on this machine (``runs_root/<preset>/<env>-<dataset>-*``, their
-    ``metrics.jsonl``): their score and loss curves in one figure (:func:`minsubdt_jax.plot.plot_runs`), written to
-    ``out_root/table1_curves/<preset>-<env>-<dataset>.png``; ``{"dataset/env": png path relative to out_root}``."""
+def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed) -> dict:
+    """Per landed cell (``landed``: "dataset/env" keys with results) with training runs on this machine
+    (``runs_root/<preset>/<env>-<dataset>-*``, their ``metrics.jsonl``): their score and loss curves in one figure
+    (:func:`minsubdt_jax.plot.plot_runs`), written to ``out_root/table1_curves/<preset>-<env>-<dataset>.png``. A
+    cell still training gets no figure (the report would link one that is not committed); a landed cell whose runs
+    are not here keeps the figure already in ``out_root``. ``{"dataset/env": png path relative to out_root}``."""
     from minsubdt_jax.plot import plot_runs
 
     pngs = {}
     for env in ENVS:
         for ds in DATASETS:
+            if f"{ds}/{env}" not in landed:
+                continue
+            rel = os.path.join("table1_curves", f"{preset}-{env}-{ds}.png")
             dirs = sorted(d for d in glob.glob(os.path.join(runs_root, preset, f"{env}-{ds}-*"))
                           if os.path.exists(os.path.join(d, "metrics.jsonl")) and _methods_of(d, f"{env}-{ds}-"))
             if dirs:
-                rel = os.path.join("table1_curves", f"{preset}-{env}-{ds}.png")
                 os.makedirs(os.path.join(out_root, "table1_curves"), exist_ok=True)
                 plot_runs(dirs, os.path.join(out_root, rel),
                           labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
+            if dirs or os.path.exists(os.path.join(out_root, rel)):
                 pngs[f"{ds}/{env}"] = rel
     return pngs
 
@@ -204,7 +209,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, **PUBLISHED_BASELINES[d, e])
                                               for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
-    out["curves"] = plot_cell_curves(preset, runs_root, out_root) if plots else {}
+    out["curves"] = plot_cell_curves(preset, runs_root, out_root, set(table)) if plots else {}
     with open(os.path.join(out_root, "table1.json"), "w") as f:
         json.dump(out, f, indent=2)
     with open(os.path.join(out_root, "table1.md"), "w") as f:

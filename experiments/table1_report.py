@@ -117,12 +117,13 @@ def _versus_lines(vs: dict) -> list[str]:
 def markdown(out: dict) -> str:
     methods = columns(out["table"])
     cols = [METHOD_NAMES[m] for m in methods]
-    lines = [f"# Table 1 on our MJX datasets (preset `{out['preset']}`)", "",
-             "Normalised score (100 = committed SAC expert, 0 = uniform random, in MJX), mean ± std over the "
+    lines = [f"# Table 1 on our recorded datasets (preset `{out['preset']}`)", "",
+             "Normalised score (100 = committed SAC expert, 0 = uniform random, both measured in the brax-dynamics "
+             "envs), mean ± std over the "
              f"training seeds present (their count in brackets), {out.get('eval_episodes', '?')} evaluation "
              f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
              f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
-             *([] if out["preset"] == "paper" else [
+             *([] if out["preset"] != "study" else [
                  "The `study` preset: the `cpu` model with a cosine decay over 10k steps and an average of the "
                  "parameters, chosen from score curves on this CPU. **Provisional**: [docs/convergence.md]"
                  "(../../docs/convergence.md) says which cells' curves have flattened at it (and which have not) "

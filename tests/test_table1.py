@@ -179,8 +179,9 @@ def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp
 
 
 def test_report_draws_each_cells_training_curves(table1, tmp_path):
-    """``aggregate`` plots the run directories of each cell (and only that cell's: walker-medium-replay runs are
-    not walker medium's) with minsubdt_jax.plot, and the report links the figures."""
+    """``aggregate`` plots the run directories of each landed cell (and only that cell's: walker-medium-replay runs
+    are not walker medium's) with minsubdt_jax.plot; a cell still training gets no figure, a landed cell trained on
+    another machine keeps its committed one, and the report links the figures."""
     runs = tmp_path / "runs" / "smoke"
     for name in ("walker-medium-minsubdt+dt-s0-1", "walker-medium-replay-dt-s0", "walker-medium-bc-s0"):
         (runs / name).mkdir(parents=True)
@@ -188,10 +189,15 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path):
                 {"step": 10, "final": True, "eval_method": ["dt"], "eval_seed": [0], "eval_normalized_score": [40.0],
                  "eval_min_subdominance": [1.0]}]
         (runs / name / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
-    pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(tmp_path / "agg"))
+    agg = tmp_path / "agg"
+    (agg / "table1_curves").mkdir(parents=True)
+    (agg / "table1_curves" / "smoke-hopper-medium.png").write_bytes(b"committed")  # landed, trained elsewhere
+    landed = {"medium/walker", "medium/hopper", "medium-expert/hopper"}  # walker medium-replay: still training
+    pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(agg), landed)
     assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
-                    "medium-replay/walker": "table1_curves/smoke-walker-medium-replay.png"}
-    assert (tmp_path / "agg" / pngs["medium/walker"]).stat().st_size > 1000
+                    "medium/hopper": "table1_curves/smoke-hopper-medium.png"}
+    assert (agg / pngs["medium/walker"]).stat().st_size > 1000
+    assert not (agg / "table1_curves" / "smoke-walker-medium-replay.png").exists()
 
 
 def test_versus_dt_is_welchs_difference_with_a_two_se_verdict(table1):
