@@ -39,7 +39,8 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs, versus_dt)
-from table1_units import commit_results, compact, per_seed_results, plan_units, run_name, seed_runs  # noqa: E402,F401
+from table1_units import (commit_results, compact, curves_from_results, model_curve, per_seed_results,  # noqa: E402,F401
+                          plan_units, run_name, seed_runs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -95,6 +96,8 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         scores, written = [], []
         for j, name in enumerate(names):
             one = per_seed_results(res, j)
+            curve = model_curve(cfg.out, res["models"][j] if "models" in res else one["config"])
+            one.update({"curve": curve} if curve else {})
             d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
             dst = path(env, d, m, s)
             assert name == run_name(env, d, m, s), (name, d, m, s)
@@ -128,13 +131,14 @@ def _methods_of(run_dir: str, prefix: str) -> list[str]:
     return names if names and all(n in ALL_METHODS for n in names) else []
 
 
-def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed) -> dict:
-    """Per landed cell (``landed``: "dataset/env" keys with results) with training runs on this machine
-    (``runs_root/<preset>/<env>-<dataset>-*``, their ``metrics.jsonl``): their score and loss curves in one figure
-    (:func:`minsubdt_jax.plot.plot_runs`), written to ``out_root/table1_curves/<preset>-<env>-<dataset>.png``. A
-    cell still training gets no figure (the report would link one that is not committed); a landed cell whose runs
-    are not here keeps the figure already in ``out_root``. ``{"dataset/env": png path relative to out_root}``."""
-    from minsubdt_jax.plot import plot_runs
+def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()) -> dict:
+    """Per landed cell (``landed``: "dataset/env" keys with results): its score and loss curves in one figure,
+    ``out_root/table1_curves/<preset>-<env>-<dataset>.png``, drawn from its training runs on this machine
+    (``runs_root/<preset>/<env>-<dataset>-*``, their ``metrics.jsonl``: :func:`minsubdt_jax.plot.plot_runs`), else
+    from the ``curve`` its result files keep (``rows``, :func:`load_results`), else the figure already in
+    ``out_root`` is kept. A cell still training gets no figure (the report would link one that is not committed).
+    ``{"dataset/env": png path relative to out_root}``."""
+    from minsubdt_jax.plot import plot_curves, plot_runs
 
     pngs = {}
     for env in ENVS:
@@ -142,13 +146,17 @@ def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed) -> dict
             if f"{ds}/{env}" not in landed:
                 continue
             rel = os.path.join("table1_curves", f"{preset}-{env}-{ds}.png")
+            png = os.path.join(out_root, rel)
             dirs = sorted(d for d in glob.glob(os.path.join(runs_root, preset, f"{env}-{ds}-*"))
                           if os.path.exists(os.path.join(d, "metrics.jsonl")) and _methods_of(d, f"{env}-{ds}-"))
-            if dirs:
+            kept = [r for r in rows if r["env"] == env and r["dataset"] == ds and r["r"].get("curve")]
+            if dirs or kept:
                 os.makedirs(os.path.join(out_root, "table1_curves"), exist_ok=True)
-                plot_runs(dirs, os.path.join(out_root, rel),
-                          labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
-            if dirs or os.path.exists(os.path.join(out_root, rel)):
+            if dirs:
+                plot_runs(dirs, png, labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
+            elif kept:
+                plot_curves([curves_from_results(kept)], png, [f"{env}-{ds} (result files)"])
+            if os.path.exists(png):
                 pngs[f"{ds}/{env}"] = rel
     return pngs
 
@@ -209,7 +217,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, **PUBLISHED_BASELINES[d, e])
                                               for (d, e), v in PUBLISHED.items()}}
     os.makedirs(out_root, exist_ok=True)
-    out["curves"] = plot_cell_curves(preset, runs_root, out_root, set(table)) if plots else {}
+    out["curves"] = plot_cell_curves(preset, runs_root, out_root, set(table), rows) if plots else {}
     with open(os.path.join(out_root, "table1.json"), "w") as f:
         json.dump(out, f, indent=2)
     with open(os.path.join(out_root, "table1.md"), "w") as f:

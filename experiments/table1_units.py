@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 import subprocess
 
+import numpy as np
+
 from minsubdt_jax.config import SINGLE_DATASET_AGENTS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
@@ -55,7 +57,7 @@ def compact(results: dict) -> dict:
             return {k: rnd(v) for k, v in x.items()}
         return x
 
-    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics")
+    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics", "curve")
     return rnd({k: results[k] for k in keep if k in results})
 
 
@@ -94,3 +96,43 @@ def commit_results(paths: list[str], message: str) -> None:
     rel = [os.path.relpath(os.path.abspath(p), cwd) for p in paths]
     subprocess.run(["git", "add", "--", *rel], cwd=cwd, check=True, capture_output=True)
     subprocess.run(["git", "commit", "-q", "-m", message, "--", *rel], cwd=cwd, check=True, capture_output=True)
+
+
+def model_curve(run_dir: str, model: dict) -> dict | None:
+    """One model's training curve from its program's ``metrics.jsonl`` (``model``: its ``method``, ``seed`` and,
+    over several datasets, ``dataset``, as in results.json's ``models``): the evaluations' steps, normalised score
+    and min-subdominance (means over their episodes; ``final`` marks the last), and its training loss per logged
+    step. Kept in the model's result file, so a landed cell's curves outlive the machine that trained it; ``None``
+    where the run directory has no evaluation."""
+    from minsubdt_jax.rundir import read_metrics
+
+    rows = read_metrics(os.path.join(run_dir, "metrics.jsonl"))
+    evals = [r for r in rows if "eval_normalized_score" in r]
+    if not evals:
+        return None
+    r0 = evals[0]
+    k = next((i for i, (m, s) in enumerate(zip(r0["eval_method"], r0["eval_seed"]))
+              if m == model["method"] and s == model["seed"]
+              and ("eval_dataset" not in r0 or r0["eval_dataset"][i] == model.get("dataset"))), None)
+    if k is None:
+        raise ValueError(f"{run_dir}: metrics.jsonl evaluates no model {model} (another program's run directory?)")
+    losses = [r for r in rows if "loss_per_seed" in r]
+    return {"step": [r["step"] for r in evals], "final": [bool(r.get("final", False)) for r in evals],
+            "normalized_score": [r["eval_normalized_score"][k] for r in evals],
+            "min_subdominance": [r["eval_min_subdominance"][k] for r in evals],
+            "loss_step": [r["step"] for r in losses], "loss": [r["loss_per_seed"][k] for r in losses]}
+
+
+def curves_from_results(rows: list[dict]) -> dict:
+    """:func:`minsubdt_jax.plot.curves`' dict from the ``curve`` of committed result files (``rows``: one cell's,
+    from ``table1.load_results``): per method, the mean and std over its seeds at each evaluation step."""
+    have = [r for r in rows if r["r"].get("curve")]
+    out = {"score": {}, "min_subdominance": {}}
+    steps, loss = have[0]["r"]["curve"]["loss_step"], np.array([r["r"]["curve"]["loss"] for r in have], float)
+    out["loss"] = (np.array(steps), loss.mean(0), loss.std(0))
+    for method in dict.fromkeys(r["method"] for r in have):
+        cs = [r["r"]["curve"] for r in have if r["method"] == method]
+        for key, name in (("normalized_score", "score"), ("min_subdominance", "min_subdominance")):
+            v = np.array([c[key] for c in cs], float)
+            out[name][method] = (np.array(cs[0]["step"]), v.mean(0), v.std(0), np.array(cs[0]["final"]))
+    return out

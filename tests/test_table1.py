@@ -107,6 +107,12 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
         calls.append((cfg.env, cfg.dataset, cfg.method, cfg.seed, cfg.seeds, os.path.basename(cfg.out)))
         if "bc" in cfg.methods and cfg.seed + cfg.seeds > 1:  # any program that trains seed 1 of BC
             raise RuntimeError("simulated crash")
+        if cfg.method == "minsubdt,bc" and cfg.seed == 0:  # the first program logs one evaluation of its models
+            os.makedirs(cfg.out)
+            with open(os.path.join(cfg.out, "metrics.jsonl"), "w") as f:
+                f.write(json.dumps({"step": 1, "loss": 1.0, "loss_per_seed": [1.5, 0.5]}) + "\n" + json.dumps(
+                    {"step": 1, "final": True, "eval_method": ["minsubdt", "bc"], "eval_seed": [0, 0],
+                     "eval_normalized_score": [50.0, 30.0], "eval_min_subdominance": [1.0, 1.0]}) + "\n")
         return fake_results(cfg)
 
     kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
@@ -136,6 +142,8 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     assert "dataset_per_model" not in r2 and "eval_per_seed" not in r2 and r2["dataset"]["costs_sample"]
     bc0 = json.loads((res_dir / "hopper-medium-bc-s0.json").read_text())
     assert bc0["config"]["method"] == "bc" and bc0["eval"]["normalized_score_mean"] == 30.0
+    assert bc0["curve"]["normalized_score"] == [30.0] and bc0["curve"]["loss"] == [0.5]  # its own model's curve
+    assert "curve" not in r2  # its program logged no evaluation
 
     out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=True,
                            runs_root=str(tmp_path / "runs"))
@@ -192,11 +200,34 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path):
     agg = tmp_path / "agg"
     (agg / "table1_curves").mkdir(parents=True)
     (agg / "table1_curves" / "smoke-hopper-medium.png").write_bytes(b"committed")  # landed, trained elsewhere
-    landed = {"medium/walker", "medium/hopper", "medium-expert/hopper"}  # walker medium-replay: still training
-    pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(agg), landed)
+    # a program of two models (dt s0, bc s1): each result file keeps its own model's curve
+    prog = tmp_path / "runs" / "elsewhere"
+    prog.mkdir()
+    recs = [{"step": 5, "loss": 2.0, "loss_per_seed": [3.0, 1.0]},
+            {"step": 5, "eval_method": ["dt", "bc"], "eval_seed": [0, 1], "eval_normalized_score": [10.0, 20.0],
+             "eval_min_subdominance": [1.0, 2.0]},
+            {"step": 10, "loss": 1.0, "loss_per_seed": [1.5, 0.5]},
+            {"step": 10, "final": True, "eval_method": ["dt", "bc"], "eval_seed": [0, 1],
+             "eval_normalized_score": [30.0, 40.0], "eval_min_subdominance": [0.5, 1.5]}]
+    (prog / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    bc = table1.model_curve(str(prog), {"method": "bc", "seed": 1})
+    assert bc == {"step": [5, 10], "final": [False, True], "normalized_score": [20.0, 40.0],
+                  "min_subdominance": [2.0, 1.5], "loss_step": [5, 10], "loss": [1.0, 0.5]}
+    assert table1.model_curve(str(tmp_path), {"method": "bc", "seed": 1}) is None  # no evaluations there
+    with pytest.raises(ValueError, match="evaluates no model"):
+        table1.model_curve(str(prog), {"method": "bc", "seed": 0})
+    rows = [{"env": "walker", "dataset": "medium-expert", "method": m, "seed": s,
+             "r": {"curve": dict(bc, normalized_score=[v, v + 10.0])}} for m, s, v in (("dt", 0, 0.0), ("dt", 1, 4.0))]
+    c = table1.curves_from_results(rows)
+    np.testing.assert_allclose(c["score"]["dt"][1], [2.0, 12.0])
+    np.testing.assert_allclose(c["score"]["dt"][2], [2.0, 2.0])
+    landed = {"medium/walker", "medium/hopper", "medium-expert/hopper", "medium-expert/walker"}
+    pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(agg), landed, rows)
     assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
-                    "medium/hopper": "table1_curves/smoke-hopper-medium.png"}
+                    "medium/hopper": "table1_curves/smoke-hopper-medium.png",
+                    "medium-expert/walker": "table1_curves/smoke-walker-medium-expert.png"}  # from its result files
     assert (agg / pngs["medium/walker"]).stat().st_size > 1000
+    assert (agg / pngs["medium-expert/walker"]).stat().st_size > 1000
     assert not (agg / "table1_curves" / "smoke-walker-medium-replay.png").exists()
 
 

@@ -40,13 +40,17 @@ def curves(run_dir: str) -> dict:
 
 def plot_runs(run_dirs: list[str], png: str, labels: list[str] | None = None) -> None:
     """Writes ``png``: loss, normalised score and min-subdominance of ``run_dirs`` (see the module docstring)."""
+    data = [curves(d) for d in run_dirs]  # every directory checked before anything is drawn
+    plot_curves(data, png, labels or [os.path.basename(os.path.normpath(d)) for d in run_dirs])
+
+
+def plot_curves(data: list[dict], png: str, labels: list[str]) -> None:
+    """Writes ``png`` from :func:`curves`' dicts (one per label), however they were gathered."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels = labels or [os.path.basename(os.path.normpath(d)) for d in run_dirs]
-    data = [curves(d) for d in run_dirs]  # every directory checked before anything is drawn
     fig, axes = plt.subplots(1, 3, figsize=(15, 4), dpi=100)
     k = 0
     for label, c in zip(labels, data):
