@@ -70,6 +70,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.rundir import checkpoint_steps
 
     out_dir = result_dir(variant(preset, costs), results_root)
     os.makedirs(out_dir, exist_ok=True)
@@ -88,7 +89,8 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         log(f"[{i + 1}/{len(todo)}] {label} ...")
         t0 = time.time()
         try:
-            res = train_fn(cfg, resume=os.path.exists(os.path.join(cfg.out, "config.json")), verbose=False)
+            # resumed where a checkpoint is (a program cut before its first one starts again)
+            res = train_fn(cfg, resume=bool(checkpoint_steps(os.path.join(cfg.out, "checkpoints"))), verbose=False)
         except Exception:  # one failed program must not stop the sweep; it is reported and retried next time
             log(traceback.format_exc())
             status["failed"] += names

@@ -101,10 +101,11 @@ def test_seed_runs_groups_consecutive_seeds(table1):
 
 
 def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
-    calls = []
+    calls, resumed = [], []
 
     def fake_train(cfg, resume=False, verbose=False):
         calls.append((cfg.env, cfg.dataset, cfg.method, cfg.seed, cfg.seeds, os.path.basename(cfg.out)))
+        resumed.append(resume)
         if "bc" in cfg.methods and cfg.seed + cfg.seeds > 1:  # any program that trains seed 1 of BC
             raise RuntimeError("simulated crash")
         if cfg.method == "minsubdt,bc" and cfg.seed == 0:  # the first program logs one evaluation of its models
@@ -117,6 +118,9 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
 
     kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
               results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+    cut = tmp_path / "runs" / "smoke" / "hopper-medium-dt-s0-1"  # cut before its first checkpoint: starts again
+    (cut / "checkpoints").mkdir(parents=True)
+    (cut / "config.json").write_text("{}")
     st = table1.run_sweep(methods=("minsubdt", "bc"), seeds=(0,), **kw)
     # methods missing the same seeds are one program, written one file per model
     assert calls == [("hopper", "medium", "minsubdt,bc", 0, 1, "hopper-medium-minsubdt+bc-s0")]
@@ -129,9 +133,12 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     assert len(st["skipped"]) == 2 and st["failed"] == ["hopper-medium-minsubdt-s1", "hopper-medium-minsubdt-s2",
                                                         "hopper-medium-bc-s1", "hopper-medium-bc-s2"]
     calls.clear()
+    resumed.clear()
+    (tmp_path / "runs" / "smoke" / "hopper-medium-minsubdt+bc-s1" / "checkpoints" / "3").mkdir(parents=True)
     st = table1.run_sweep(methods=("minsubdt", "bc", "minsubdt-learned", "dt"), seeds=(0, 1), **kw)
     assert calls == [("hopper", "medium", "dt", 0, 2, "hopper-medium-dt-s0-1"),
                      ("hopper", "medium", "minsubdt,bc", 1, 1, "hopper-medium-minsubdt+bc-s1")]
+    assert resumed == [False, True]  # resumed where a checkpoint is
     assert len(st["skipped"]) == 4 and st["failed"] == ["hopper-medium-minsubdt-s1", "hopper-medium-bc-s1"]
     # a model's file reads as that model's single run, its own data summary included
     res_dir = tmp_path / "res" / "table1" / "smoke"
