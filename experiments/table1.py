@@ -39,8 +39,8 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs, versus_dt)
-from table1_units import (commit_results, compact, curves_from_results, model_curve, per_seed_results,  # noqa: E402,F401
-                          plan_units, run_name, seed_runs)
+from table1_units import (commit_results, compact, curves_from_results, model_curve,  # noqa: E402,F401
+                          per_seed_results, plan_units, run_name, seed_runs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 

@@ -197,8 +197,9 @@ def markdown(out: dict) -> str:
     lines += [f"- {d} {e}: ![curves]({png})" for key, png in sorted(out.get("curves", {}).items())
               for d, e in [key.split("/")]] or ["- none on the machine that aggregated"]
     lost = [k.replace("/", " ") for k in sorted(out.get("table", {})) if k not in out.get("curves", {})]
-    lines += [f"- no figure: {', '.join(lost)} (trained on a machine that is gone, before result files kept "
-              "their curve; the final 100-episode evaluations above are complete)"] if lost and out.get("curves") else []
+    if lost and out.get("curves"):
+        lines += [f"- no figure: {', '.join(lost)} (trained on a machine that is gone, before result files kept "
+                  "their curve; the final 100-episode evaluations above are complete)"]
     lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
               "Not comparable one to one with the table above: other physics, other behaviour policies, other "
               "references, 100k training steps. For orientation only.", "",
