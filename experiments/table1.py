@@ -98,7 +98,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         scores, written = [], []
         for j, name in enumerate(names):
             one = per_seed_results(res, j)
-            curve = model_curve(cfg.out, res["models"][j] if "models" in res else one["config"])
+            curve = model_curve(cfg.out, one["config"])  # the model's method, seed and dataset
             one.update({"curve": curve} if curve else {})
             d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
             dst = path(env, d, m, s)
