@@ -69,7 +69,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     lowest missing seed of every cell goes first."""
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
-    from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.config import preset_config
     from minsubdt_jax.rundir import checkpoint_steps
 
     out_dir = result_dir(variant(preset, costs), results_root)
@@ -82,7 +82,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         label = "+".join(ms) + f" {env}-{'+'.join(dss)} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
         own = {k: v for k, v in overrides.items() if k != "precision" or ALL_METHODS[ms[0]].agent == "dt"}
-        cfg = dataclasses.replace(PRESETS[preset], env=env, dataset=",".join(dss), method=",".join(ms), seed=first,
+        cfg = dataclasses.replace(preset_config(preset, ",".join(ms)), env=env, dataset=",".join(dss), seed=first,
                                   seeds=n, physics=physics, costs=costs, **own,
                                   out=os.path.join(runs_root, variant(preset, costs),
                                                    f"{env}-{'+'.join(dss)}-{'+'.join(ms)}{suffix}"))
@@ -253,10 +253,14 @@ def main(argv=None) -> int:
     p.add_argument("--commit", action="store_true", help="git-commit each finished unit's result files, with the "
                    "command that resumes the sweep in the message")
     a = p.parse_args(argv)
-    from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.config import CRITIC_PRESETS, PRESETS
 
     if a.preset not in PRESETS:
         p.error(f"--preset must be one of {list(PRESETS)}")
+    unset = [m for m in a.methods if m not in METHODS and ALL_METHODS[m].agent not in CRITIC_PRESETS.get(a.preset, {})]
+    if a.preset in CRITIC_PRESETS and unset:
+        p.error(f"--preset {a.preset} has no setting for {', '.join(unset)}: its agent's score curve has not flattened "
+                f"within ~10 CPU-minutes per model here (docs/convergence.md); it waits for a GPU")
     if a.costs is not None:
         from minsubdt_jax.costs import check_costs
 

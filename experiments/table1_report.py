@@ -114,6 +114,18 @@ def _versus_lines(vs: dict) -> list[str]:
     return lines
 
 
+def _critic_settings(preset: str, methods) -> list[str]:
+    """A line per critic agent with a column: the setting its own curve chose at ``preset`` (``CRITIC_PRESETS``)."""
+    from minsubdt_jax.config import CRITIC_PRESETS
+
+    own = CRITIC_PRESETS.get(preset, {})
+    agents = sorted({ALL_METHODS[m].agent for m in methods if m in CRITIC_METHODS} & set(own))
+    return [f"Critic columns train at their own `{preset}` setting, chosen by their own 3-seed curves "
+            "(`minsubdt_jax.config.CRITIC_PRESETS`, [docs/convergence.md](../../docs/convergence.md)): "
+            + "; ".join(f"{a}: {own[a]['steps']:,} steps at its reference's rates" for a in agents) + ".", ""
+            ] if agents else []
+
+
 def markdown(out: dict) -> str:
     methods = columns(out["table"])
     cols = [METHOD_NAMES[m] for m in methods]
@@ -128,7 +140,7 @@ def markdown(out: dict) -> str:
                  "parameters, chosen from score curves on this CPU. **Provisional**: [docs/convergence.md]"
                  "(../../docs/convergence.md) says which cells' curves have flattened at it (and which have not) "
                  "and how it differs from the paper's configuration. See *Data* below for the dataset files and "
-                 "cost features these runs used.", ""]
+                 "cost features these runs used.", "", *_critic_settings(out["preset"], methods)]
                if out["preset"] == "study" else [
                  f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
                  "(README, *What the presets are for*); the `study` and `paper` presets are. See *Data* below for "

@@ -193,6 +193,37 @@ def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp
     assert "| medium | hopper | 56.8 | 55.8 | 67.6 | 63.9 | 58.0 | 52.1 | 31.1 | 35.9 |" in md  # the seed's row
 
 
+def test_study_trains_each_agent_family_at_its_own_setting_and_refuses_an_unset_critic(table1, tmp_path, capsys,
+                                                                                       monkeypatch):
+    """At ``--preset study`` the DT family's program gets the study preset (cosine, EMA, 10k steps) and a critic
+    agent the setting its own curve chose (``CRITIC_PRESETS``, here one given to IQL); a critic agent without one is
+    one error before anything trains or is written."""
+    from minsubdt_jax import config
+    from minsubdt_jax.config import PRESETS
+
+    monkeypatch.setitem(config.CRITIC_PRESETS, "study", {"iql": dict(steps=1234, lr_schedule="constant",
+                                                                      ema_decay=0.0)})
+    cfgs = []
+
+    def fake_train(cfg, resume=False, verbose=False):
+        cfgs.append(cfg)
+        return fake_results(cfg)
+
+    table1.run_sweep(preset="study", envs=("hopper",), datasets=("medium",), methods=("dt", "iql"), seeds=(0,),
+                     runs_root=str(tmp_path / "runs"), results_root=str(tmp_path / "res"), train_fn=fake_train,
+                     log=lambda *_: None)
+    by = {c.method: c for c in cfgs}
+    assert (by["dt"].steps, by["dt"].lr_schedule, by["dt"].ema_decay) == (PRESETS["study"].steps, "cosine", 0.999)
+    assert (by["iql"].steps, by["iql"].lr_schedule, by["iql"].ema_decay) == (1234, "constant", 0.0)
+    assert by["iql"].eval_episodes == by["dt"].eval_episodes == 100
+    table1.aggregate("study", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=False)
+    assert "iql: 1,234 steps at its reference's rates" in (tmp_path / "agg" / "table1.md").read_text()
+    with pytest.raises(SystemExit) as e:
+        table1.main(["run", "--preset", "study", "--methods", "iql", "cql", "--runs-root", str(tmp_path / "no")])
+    assert e.value.code == 2 and "no setting for cql" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists()
+
+
 def test_report_draws_each_cells_training_curves(table1, tmp_path):
     """``aggregate`` plots the run directories of each landed cell (and only that cell's: walker-medium-replay runs
     are not walker medium's) with minsubdt_jax.plot; a cell still training gets no figure, a landed cell trained on

@@ -277,7 +277,7 @@ def test_learned_costs_and_behaviour_cloning(tmp_path, small_dataset_path):
     assert len(ev["costs"]) == 3 and len(res["dataset"]["costs_sample"]) == 32
 
 
-def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp_path, capsys):
+def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp_path, capsys, monkeypatch):
     """A run's config.json read back with --config is the same Config; a flag overrides it; a partial YAML
     starts from its preset; a file that does not parse, names an unknown field or has a wrong type is one error
     and nothing is written. Every field has a help text (from its comment in config.py)."""
@@ -295,6 +295,13 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     (tmp_path / "c.yaml").write_text("preset: smoke\nsteps: 5\nlearning_rate: 1\n")
     assert parse_args(["--config", str(tmp_path / "c.yaml")])[0] == dataclasses.replace(PRESETS["smoke"], steps=5,
                                                                                          learning_rate=1.0)
+    from minsubdt_jax import config  # a critic agent with its own study setting gets it; --steps overrides it
+
+    monkeypatch.setitem(config.CRITIC_PRESETS, "study", {"iql": dict(steps=1234, lr_schedule="constant")})
+    study_iql = parse_args(["--preset", "study", "--method", "iql"])[0]
+    assert (study_iql.steps, study_iql.lr_schedule, study_iql.ema_decay) == (1234, "constant", 0.999)
+    assert parse_args(["--preset", "study", "--method", "iql", "--steps", "9"])[0].steps == 9
+    assert parse_args(["--preset", "study"])[0] == PRESETS["study"]
     out = tmp_path / "never"
     for text, name, msg in (("steps: [\n", "a.yaml", "does not parse"), ('{"stpes": 3}', "b.json", "unknown field"),
                             ('{"steps": "3"}', "c.json", "field 'steps' must be int")):
