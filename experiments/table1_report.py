@@ -122,7 +122,9 @@ def _critic_settings(preset: str, methods) -> list[str]:
     agents = sorted({ALL_METHODS[m].agent for m in methods if m in CRITIC_METHODS} & set(own))
     return [f"Critic columns train at their own `{preset}` setting, chosen by their own 3-seed curves "
             "(`minsubdt_jax.config.CRITIC_PRESETS`, [docs/convergence.md](../../docs/convergence.md)): "
-            + "; ".join(f"{a}: {own[a]['steps']:,} steps at its reference's rates" for a in agents) + ".", ""
+            + "; ".join(f"{a}: {own[a]['steps']:,} steps at its reference's rates"
+                        + (f", evaluated with an EMA {own[a]['ema_decay']} of its parameters" if own[a].get("ema_decay")
+                           else "") for a in agents) + ".", ""
             ] if agents else []
 
 

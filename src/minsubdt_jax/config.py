@@ -154,9 +154,9 @@ PRESETS = {
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
-# per agent family (issue 25): a critic agent's preset values, chosen by its own 3-seed curve; it keeps its reference's
-# rate schedule. At `study` an agent without an entry has not converged here: experiments/table1.py refuses it
-CRITIC_PRESETS = {"study": {}}  # none yet: IQL at 60k swung -9.4 +- 6.6 over its last third
+# per agent family (issue 25): a critic agent's preset values, chosen by its own 3-seed curve (IQL: walker medium, EMA).
+# It keeps its reference's rates. At `study` an agent without an entry has not converged here: table1.py refuses it
+CRITIC_PRESETS = {"study": {"iql": dict(steps=60_000, chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)}}
 
 
 def preset_config(name: str, method: str = Config.method) -> Config:
