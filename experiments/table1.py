@@ -39,8 +39,8 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs, versus_dt)
-from table1_units import (commit_results, compact, curves_from_results, model_curve,  # noqa: E402,F401
-                          per_seed_results, plan_units, run_name, seed_runs)
+from table1_units import (check_critic_settings, commit_results, compact, curves_from_results,  # noqa: E402,F401
+                          model_curve, per_seed_results, plan_units, run_name, seed_runs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -72,6 +72,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     from minsubdt_jax.config import preset_config
     from minsubdt_jax.rundir import checkpoint_steps
 
+    check_critic_settings(preset, methods)  # before anything is written
     out_dir = result_dir(variant(preset, costs), results_root)
     os.makedirs(out_dir, exist_ok=True)
     path = lambda e, d, m, s: os.path.join(out_dir, run_name(e, d, m, s) + ".json")  # noqa: E731
@@ -253,14 +254,15 @@ def main(argv=None) -> int:
     p.add_argument("--commit", action="store_true", help="git-commit each finished unit's result files, with the "
                    "command that resumes the sweep in the message")
     a = p.parse_args(argv)
-    from minsubdt_jax.config import CRITIC_PRESETS, PRESETS
+    from minsubdt_jax.config import PRESETS
 
     if a.preset not in PRESETS:
         p.error(f"--preset must be one of {list(PRESETS)}")
-    unset = [m for m in a.methods if m not in METHODS and ALL_METHODS[m].agent not in CRITIC_PRESETS.get(a.preset, {})]
-    if a.preset in CRITIC_PRESETS and unset:
-        p.error(f"--preset {a.preset} has no setting for {', '.join(unset)}: its agent's score curve has not flattened "
-                f"within ~10 CPU-minutes per model here (docs/convergence.md); it waits for a GPU")
+    if a.action in ("all", "run"):
+        try:
+            check_critic_settings(a.preset, a.methods)
+        except ValueError as e:
+            p.error(str(e))
     if a.costs is not None:
         from minsubdt_jax.costs import check_costs
 

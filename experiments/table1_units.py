@@ -8,12 +8,23 @@ import subprocess
 
 import numpy as np
 
-from minsubdt_jax.config import SINGLE_DATASET_AGENTS
+from minsubdt_jax.config import CRITIC_PRESETS, SINGLE_DATASET_AGENTS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 
 def run_name(env, dataset, method, seed) -> str:
     return f"{env}-{dataset}-{method}-s{seed}"
+
+
+def check_critic_settings(preset: str, methods) -> None:
+    """Raise ValueError if a critic method of ``methods`` has no setting of its own at ``preset`` where the preset
+    gives critic agents their own (``minsubdt_jax.config.CRITIC_PRESETS``): the DT family's would be no result."""
+    own = CRITIC_PRESETS.get(preset)
+    agents = {m: ALL_METHODS[m].agent for m in methods}
+    unset = [] if own is None else [m for m, a in agents.items() if a != "dt" and a not in own]
+    if unset:
+        raise ValueError(f"--preset {preset} has no setting for {', '.join(unset)}: its agent's score curve has not "
+                         f"flattened within ~10 CPU-minutes per model here (docs/convergence.md); it waits for a GPU")
 
 
 def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):

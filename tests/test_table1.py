@@ -197,7 +197,7 @@ def test_study_trains_each_agent_family_at_its_own_setting_and_refuses_an_unset_
                                                                                        monkeypatch):
     """At ``--preset study`` the DT family's program gets the study preset (cosine, EMA, 10k steps) and a critic
     agent the setting its own curve chose (``CRITIC_PRESETS``, here one given to IQL); a critic agent without one is
-    one error before anything trains or is written."""
+    one error before anything trains or is written, from the command line and from ``run_sweep``."""
     from minsubdt_jax import config
     from minsubdt_jax.config import PRESETS
 
@@ -221,6 +221,10 @@ def test_study_trains_each_agent_family_at_its_own_setting_and_refuses_an_unset_
     with pytest.raises(SystemExit) as e:
         table1.main(["run", "--preset", "study", "--methods", "iql", "cql", "--runs-root", str(tmp_path / "no")])
     assert e.value.code == 2 and "no setting for cql" in capsys.readouterr().err
+    assert not (tmp_path / "no").exists()
+    with pytest.raises(ValueError, match="no setting for cql"):  # the library call too, before anything is written
+        table1.run_sweep(preset="study", methods=("cql",), runs_root=str(tmp_path / "no"),
+                         results_root=str(tmp_path / "no"), train_fn=fake_train)
     assert not (tmp_path / "no").exists()
 
 
