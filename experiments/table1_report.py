@@ -166,6 +166,11 @@ def markdown(out: dict) -> str:
         lines += ["", f"Critic agents without a result at `{out['preset']}` (every cell '–'): {', '.join(absent)}. "
                   "One gets a column once its score curve flattens within ~10 CPU-minutes per model here (issue 25); "
                   "the others wait for a GPU. Their speeds and curves: [docs/critics.md](../../docs/critics.md)."]
+        from minsubdt_jax.config import CRITIC_PRESETS
+        own = CRITIC_PRESETS.get(out["preset"], {})
+        ready = [METHOD_NAMES[m] for m in CRITIC_METHODS if ALL_METHODS[m].agent in own and m not in methods
+                 and not m.startswith("minsubdt-")]
+        lines[-1] += f" With a setting but no column yet: {', '.join(ready)}." if ready else ""
     lines += _versus_lines(out["versus_dt"] if "versus_dt" in out else versus_dt(out["table"]))
     lines += ["", "## Better than demonstrated?", "",
               "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "

@@ -141,8 +141,7 @@ PRESETS = {
     "smoke": Config(preset="smoke", steps=20, context_len=5, embed_dim=32, n_layers=1, batch_size=8,
                     warmup_steps=10, learning_rate=1e-3, chunk_steps=10, episode_length=100,
                     dataset_transitions=2000, eval_episodes=3, eval_episodes_periodic=3, cost_steps=20),
-    # trains and evaluates one dataset in <= 15 min on a 2-core CPU
-    # (an evaluation every 500 steps: the learning curve shows a score curve)
+    # trains and evaluates one dataset in <= 15 min on a 2-core CPU (an evaluation every 500 steps: a score curve)
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
                   chunk_steps=500, eval_episodes=10, eval_every=500, cost_steps=500),
     # chosen from score curves to be affordable on a 2-core CPU (issue 25; provisional: docs/convergence.md says
@@ -154,9 +153,10 @@ PRESETS = {
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
-# per agent family (issue 25): a critic agent's preset values, chosen by its own 3-seed curve (IQL: walker medium, EMA).
-# It keeps its reference's rates. At `study` an agent without an entry has not converged here: table1.py refuses it
-CRITIC_PRESETS = {"study": {"iql": dict(steps=60_000, chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)}}
+# per agent family (issue 25): a critic agent's preset values, chosen by its own 3-seed curve (walker medium, EMA),
+# at its reference's rates. At `study` an agent without an entry has not converged here: table1.py refuses it
+_CRITIC_STUDY = dict(chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)
+CRITIC_PRESETS = {"study": {"iql": dict(_CRITIC_STUDY, steps=60_000), "td3bc": dict(_CRITIC_STUDY, steps=100_000)}}
 
 
 def preset_config(name: str, method: str = Config.method) -> Config:
