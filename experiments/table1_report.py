@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from minsubdt_jax.config import CRITIC_PRESETS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 ENVS = ("halfcheetah", "hopper", "walker")
@@ -116,8 +117,6 @@ def _versus_lines(vs: dict) -> list[str]:
 
 def _critic_settings(preset: str, methods) -> list[str]:
     """A line per critic agent with a column: the setting its own curve chose at ``preset`` (``CRITIC_PRESETS``)."""
-    from minsubdt_jax.config import CRITIC_PRESETS
-
     own = CRITIC_PRESETS.get(preset, {})
     agents = sorted({ALL_METHODS[m].agent for m in methods if m in CRITIC_METHODS} & set(own))
     return [f"Critic columns train at their own `{preset}` setting, chosen by their own 3-seed curves "
@@ -161,16 +160,14 @@ def markdown(out: dict) -> str:
         lines.append(f"| **average ({label})** | | | " + " | ".join(
             "–" if av.get(m, {}).get("mean") is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
             for m in methods) + " |")
-    absent = [METHOD_NAMES[m] for m in CRITIC_METHODS if not m.startswith("minsubdt-") and m not in methods]
+    absent = [m for m in CRITIC_METHODS if not m.startswith("minsubdt-") and m not in methods]
     if absent:
-        lines += ["", f"Critic agents without a result at `{out['preset']}` (every cell '–'): {', '.join(absent)}. "
+        ready = [METHOD_NAMES[m] for m in absent if ALL_METHODS[m].agent in CRITIC_PRESETS.get(out["preset"], {})]
+        lines += ["", f"Critic agents without a result at `{out['preset']}` (every cell '–'): "
+                  f"{', '.join(METHOD_NAMES[m] for m in absent)}. "
                   "One gets a column once its score curve flattens within ~10 CPU-minutes per model here (issue 25); "
-                  "the others wait for a GPU. Their speeds and curves: [docs/critics.md](../../docs/critics.md)."]
-        from minsubdt_jax.config import CRITIC_PRESETS
-        own = CRITIC_PRESETS.get(out["preset"], {})
-        ready = [METHOD_NAMES[m] for m in CRITIC_METHODS if ALL_METHODS[m].agent in own and m not in methods
-                 and not m.startswith("minsubdt-")]
-        lines[-1] += f" With a setting but no column yet: {', '.join(ready)}." if ready else ""
+                  "the others wait for a GPU. Their speeds and curves: [docs/critics.md](../../docs/critics.md)."
+                  + (f" With a setting but no column yet: {', '.join(ready)}." if ready else "")]
     lines += _versus_lines(out["versus_dt"] if "versus_dt" in out else versus_dt(out["table"]))
     lines += ["", "## Better than demonstrated?", "",
               "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
