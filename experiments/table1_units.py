@@ -23,8 +23,8 @@ def check_critic_settings(preset: str, methods) -> None:
     agents = {m: ALL_METHODS[m].agent for m in methods}
     unset = [] if own is None else [m for m, a in agents.items() if a != "dt" and a not in own]
     if unset:
-        raise ValueError(f"--preset {preset} has no setting for {', '.join(unset)}: its agent's score curve has not "
-                         f"flattened within ~10 CPU-minutes per model here (docs/convergence.md); it waits for a GPU")
+        raise ValueError(f"--preset {preset} has no setting for {', '.join(unset)}: no score curve has shown its "
+                         f"agent flat within ~10 CPU-minutes per model here (docs/convergence.md); it waits for a GPU")
 
 
 def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):
