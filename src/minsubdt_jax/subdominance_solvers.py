@@ -35,7 +35,8 @@ class SortedDemos(NamedTuple):
     ``xc`` is ``x`` shifted by the demo mean (sums use shifted values: better rounding; orderings use the raw
     ones, so a demo equal to ``x`` always compares equal). ``prefix(m)`` is the shifted sum of the ``m``
     smallest remaining demos, ``sorted_value(r)`` the r-th smallest remaining demo, ``count_below(t)`` the number
-    of remaining demos ``< t`` (``count_at_or_below(t)``: ``<= t``); all take and return ``[N, K]``."""
+    of remaining demos ``< t``; all take and return ``[N, K]``. ``at_or_below [N, K]`` is the number of remaining
+    demos ``<= x`` (counted once: ``g`` reads it at every evaluation)."""
 
     x: jax.Array
     xc: jax.Array
@@ -43,14 +44,14 @@ class SortedDemos(NamedTuple):
     prefix: Callable
     sorted_value: Callable
     count_below: Callable
-    count_at_or_below: Callable
+    at_or_below: jax.Array
 
     def g(self, alpha, beta):
         """``[N, K]`` mean subdominance per feature at ``alpha [N, K]`` (the module's ``g``)."""
         safe = jnp.where(alpha > 0, alpha, 1.0)
         # demos <= x are always active; max() keeps them so when x + beta / alpha rounds down to x (counted with
         # <=, not < nextafter(x): XLA's CPU flushes that subnormal to 0 when x = 0)
-        active = jnp.maximum(self.count_below(self.x + beta / safe), self.count_at_or_below(self.x))
+        active = jnp.maximum(self.count_below(self.x + beta / safe), self.at_or_below)
         c = jnp.where(alpha > 0, active, self.m_eff)
         return jnp.maximum(alpha * (c * self.xc - self.prefix(c)) + c * beta, 0.0) / self.m_eff
 
@@ -87,8 +88,7 @@ def sorted_demos(F, G, leave_one_out: bool) -> SortedDemos:
         c = _count_below_rows(s_km, t, side)
         return c - (p < c)
 
-    return SortedDemos(F, F - center, m_eff, prefix, sorted_value, count_below,
-                       lambda t: count_below(t, "right"))
+    return SortedDemos(F, F - center, m_eff, prefix, sorted_value, count_below, count_below(F, "right"))
 
 
 @partial(jax.jit, static_argnames="leave_one_out")
@@ -140,7 +140,7 @@ def optax_adam(F, G, beta, alpha_max, leave_one_out, l2, steps, learning_rate):
     # Past the last breakpoint beta / (smallest s_j - x > 0) g is non-decreasing (only demos <= x are active),
     # so the minimum lies below it: project there (a hair above, for rounding). Without a demo above x, g is
     # non-decreasing everywhere (alpha* = 0) and theta only has to go down from theta0.
-    at_or_below = t.count_at_or_below(t.x)
+    at_or_below = t.at_or_below
     has_above = at_or_below < t.m_eff
     gap_min = t.sorted_value(jnp.minimum(at_or_below, t.m_eff - 1)) - t.x
     last = jnp.where(has_above, jnp.log(beta) - jnp.log(jnp.where(has_above, gap_min, 1.0)) + 1e-6, theta0)
