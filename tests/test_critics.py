@@ -117,6 +117,12 @@ def test_brac_kl_estimate_against_the_closed_form():
     assert float(est.mean()) == pytest.approx(closed, rel=0.02)
     same = kl_estimate(jax.random.PRNGKey(0), _Fixed(m1, l1), _Fixed(m1, l1), None, None, states[:10], 4)
     np.testing.assert_allclose(same, 0.0, atol=1e-5)
+    # An actor saturated past the 1e-3 clip (pre-tanh mean 10 vs arctanh(0.999) = 3.8) is far from pi_b: with the
+    # actor's own log-density taken at the clipped sample the estimate read -8e5, a reward for leaving the data
+    b, sat = _Fixed(np.zeros(2), np.zeros(2)), lambda m: _Fixed(np.full(2, m), np.full(2, -5.0))
+    far, near = (float(kl_estimate(jax.random.PRNGKey(1), sat(m), b, None, None, states[:10], 4).mean())
+                 for m in (10, 2))
+    assert far > near > 0
 
 
 def test_awr_lambda_returns_and_weights_by_hand():

@@ -13,13 +13,16 @@ sg = jax.lax.stop_gradient
 
 def kl_estimate(rng, actor, behavior, actor_params, behavior_params, states, n: int):
     """``D(s) [B]``: the ``n``-sample estimate of KL(pi(.|s) || pi_b(.|s)), the mean over ``a ~ pi(.|s)`` of
-    ``log pi(a|s) - log pi_b(a|s)``, both densities at the sample clipped 1e-3 inside the action bounds
-    (``divergences.py``, ``kl`` with ``CLIP_EPS``). Reparameterised: the gradient reaches ``actor_params``."""
+    ``log pi(a|s) - log pi_b(a|s)`` (``divergences.py``, ``FDivergence.primal_estimate``): ``log pi`` from the
+    sample's own pre-tanh value, ``log pi_b`` at the sample clipped 1e-3 inside the action bounds (``CLIP_EPS``).
+    Clipping the actor's own term too would let an actor whose mean runs past the clip drive its ``log pi`` and
+    the estimate to -1e5 and below, a reward for leaving the data. Reparameterised: the gradient reaches
+    ``actor_params``."""
     mean, log_std = actor.apply(actor_params, states)
     mean_b, log_std_b = behavior.apply(behavior_params, states)
     mean, log_std, mean_b, log_std_b = (repeat(x, n) for x in (mean, log_std, mean_b, log_std_b))
-    a, _ = tanh_gaussian_sample(rng, mean, log_std)
-    return (tanh_gaussian_log_prob(a, mean, log_std) - tanh_gaussian_log_prob(a, mean_b, log_std_b)).mean(0)
+    a, log_pi = tanh_gaussian_sample(rng, mean, log_std)
+    return (log_pi - tanh_gaussian_log_prob(a, mean_b, log_std_b)).mean(0)
 
 
 def brac_losses(agent, params, batch: Transitions, rng, q_on):
