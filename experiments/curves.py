@@ -44,6 +44,7 @@ def name_of(a) -> str:
     extra += "" if a.methods == DEFAULT_METHODS else f"-{a.methods.replace(',', '+')}"
     extra += f"-seed{a.seed}" if a.seed else ""
     extra += f"-wu{a.warmup}" if a.warmup is not None else ""
+    extra += f"-alpha{a.brac_alpha:g}" if a.brac_alpha is not None else ""
     extra += f"-{a.steps}steps" if a.steps != DEFAULT_STEPS else ""  # a cosine run's schedule ends at its steps
     return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
@@ -57,7 +58,8 @@ def run(a) -> dict:
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
-                              out=out, **({} if a.warmup is None else {"warmup_steps": a.warmup}))
+                              out=out, **({} if a.warmup is None else {"warmup_steps": a.warmup}),
+                              **({} if a.brac_alpha is None else {"brac_alpha": a.brac_alpha}))
     res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)
@@ -198,6 +200,7 @@ def main(argv=None) -> int:
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
     p.add_argument("--warmup", type=int, default=None, help="warm-up steps of the rate (default: the model's "
                    "preset's: cpu 500, paper 10k)")
+    p.add_argument("--brac-alpha", type=float, default=None, help="BRAC-v's alpha (default: the config's 0.1)")
     p.add_argument("--runs-root", default="runs/curves")
     p.add_argument("--cells", default=CELLS, help="ties: env:dataset,...")
     p.add_argument("--cost-sets", nargs="+", default=["default"], help="ties: cost sets (comma-separated metrics; "
