@@ -6,7 +6,8 @@ actor's loss, a pure min over the twin targets, Polyak 0.005 every step, no entr
 Choices, where the reference leaves them open or its stages do not fit one run:
 
 - **alpha = 0.1**, fixed: the reference's example command (``run_primal.sh``); its launcher's default is 1.0 and
-  D4RL says it tuned alpha without saying to what. ``--brac-alpha`` sets it.
+  D4RL says it tuned alpha without saying to what. ``--brac-alpha`` sets it. On walker medium 0.1 does not
+  learn and 1.0 does (docs/convergence.md); neither curve is flat yet.
 - **The behaviour policy is pretrained inside the run**: its first ``--pretrain-steps`` steps (default a fifth of
   ``--steps``; the reference trains it in a separate 1M-step run) train only it, and it is frozen after. Its MLE
   has no entropy bonus (the reference adds a learnt one).
