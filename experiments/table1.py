@@ -40,7 +40,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report 
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs, versus_dt)
 from table1_units import (check_critic_settings, commit_results, compact, curves_from_results,  # noqa: E402,F401
-                          model_curve, per_seed_results, plan_units, run_name, seed_runs)
+                          model_curve, per_seed_results, plan_units, programs_of, run_name, seed_runs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -158,7 +158,9 @@ def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()
             if dirs:
                 plot_runs(dirs, png, labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
             elif kept:
-                plot_curves([curves_from_results(kept)], png, [f"{env}-{ds} (result files)"])
+                programs = programs_of(kept)
+                plot_curves([curves_from_results(g) for g in programs.values()], png,
+                            [f"{env}-{ds} {label} (result files)" for label in programs])
             if os.path.exists(png):
                 pngs[f"{ds}/{env}"] = rel
     return pngs

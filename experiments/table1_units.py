@@ -138,6 +138,9 @@ def curves_from_results(rows: list[dict]) -> dict:
     """:func:`minsubdt_jax.plot.curves`' dict from the ``curve`` of committed result files (``rows``: one cell's,
     from ``table1.load_results``): per method, the mean and std over its seeds at each evaluation step."""
     have = [r for r in rows if r["r"].get("curve")]
+    if len({_schedule(r) for r in have}) > 1:
+        raise ValueError("curves_from_results: these result files come from programs with different evaluation or "
+                         "loss steps; split them with programs_of first")
     out = {"score": {}, "min_subdominance": {}}
     steps, loss = have[0]["r"]["curve"]["loss_step"], np.array([r["r"]["curve"]["loss"] for r in have], float)
     out["loss"] = (np.array(steps), loss.mean(0), loss.std(0))
@@ -147,3 +150,19 @@ def curves_from_results(rows: list[dict]) -> dict:
             v = np.array([c[key] for c in cs], float)
             out[name][method] = (np.array(cs[0]["step"]), v.mean(0), v.std(0), np.array(cs[0]["final"]))
     return out
+
+
+def _schedule(row: dict) -> tuple:
+    c = row["r"]["curve"]
+    return tuple(c["step"]), tuple(c["loss_step"])
+
+
+def programs_of(rows: list[dict]) -> dict[str, list[dict]]:
+    """One cell's result rows with a ``curve``, grouped by their evaluation and loss steps (the DT family's 10k
+    steps and each critic agent's own schedule cannot share one mean), each group labelled by its methods:
+    ``{"iql": [...], "td3bc": [...]}``, the input for one :func:`curves_from_results` each."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        if r["r"].get("curve"):
+            groups.setdefault(_schedule(r), []).append(r)
+    return {"+".join(dict.fromkeys(r["method"] for r in g)): g for g in groups.values()}

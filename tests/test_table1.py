@@ -263,6 +263,13 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path):
     c = table1.curves_from_results(rows)
     np.testing.assert_allclose(c["score"]["dt"][1], [2.0, 12.0])
     np.testing.assert_allclose(c["score"]["dt"][2], [2.0, 2.0])
+    # a critic agent's program in the same cell evaluates and logs its loss at other steps: its own group
+    iql = dict(bc, step=[50, 100], final=[False, True], loss_step=[50, 100])
+    rows.append({"env": "walker", "dataset": "medium-expert", "method": "iql", "seed": 0, "r": {"curve": iql}})
+    assert {k: [(r["method"], r["seed"]) for r in g] for k, g in table1.programs_of(rows).items()} == {
+        "dt": [("dt", 0), ("dt", 1)], "iql": [("iql", 0)]}
+    with pytest.raises(ValueError, match="programs_of"):
+        table1.curves_from_results(rows)
     landed = {"medium/walker", "medium/hopper", "medium-expert/hopper", "medium-expert/walker"}
     pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(agg), landed, rows)
     assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
