@@ -78,19 +78,31 @@ POOL_KEYS = ("env", "dataset", "dataset_transitions", "dataset_seed", "episode_l
              "grad_clip", "batch_size", "lr_schedule", "ema_decay", "precision", "costs", "beta", "rtg_scale",
              "target_return", "alpha_max", "critic_batch_size")  # what a pool's files share (an older file's
 # missing field: its default, which it ran with)
+CRITIC_POOL_KEYS = ("discount", "tau", "ac_hidden", "ac_layers", "actor_lr", "critic_lr", "iql_expectile", "iql_beta",
+                    "td3bc_alpha", "cql_alpha", "cql_actions", "brac_alpha", "pretrain_steps", "mlp_hidden",
+                    "mlp_layers")  # and a file of a critic or MLP agent's too (a DT's ignores them)
+
+
+def pool_key(c: dict, default: dict) -> str:
+    """What a curve file must share with another to pool their seeds: the data's hash and :data:`POOL_KEYS`, and
+    :data:`CRITIC_POOL_KEYS` where one of its methods is not a DT (BRAC-v at alpha 1 and 3 are two settings)."""
+    from minsubdt_jax.config import METHODS
+
+    methods = c["config"].get("method", default["method"]).split(",")
+    keys = POOL_KEYS + (CRITIC_POOL_KEYS if any(METHODS[m].agent != "dt" for m in methods) else ())
+    return json.dumps([c["dataset"]["sha256"]] + [c["config"].get(k, default[k]) for k in keys])
 
 
 def pooled(curves: dict) -> list[dict]:
     """Seeds of one configuration pooled across curve files (``--seed``: more seeds of a curve, their own file):
-    per pool (files on the same data whose configs agree on :data:`POOL_KEYS`), method and evaluation step that
+    per pool (files on the same data whose configs agree: :func:`pool_key`), method and evaluation step that
     every file of that method has, the mean and the std over all its seeds."""
     from minsubdt_jax.config import Config
 
     default = dataclasses.asdict(Config())
     pools = {}  # the shared config and the data's hash -> the files
     for name, c in curves.items():
-        key = json.dumps([c["dataset"]["sha256"]] + [c["config"].get(k, default[k]) for k in POOL_KEYS])
-        pools.setdefault(key, []).append(name)
+        pools.setdefault(pool_key(c, default), []).append(name)
     rows = []
     for names in pools.values():
         if len(names) < 2:

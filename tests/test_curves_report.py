@@ -9,11 +9,16 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def test_trend_is_the_seed_fixed_effects_least_squares_slope():
+def _report():
     path = os.path.join(ROOT, "experiments", "curves_report.py")
     spec = importlib.util.spec_from_file_location("curves_report", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
+    return mod
+
+
+def test_trend_is_the_seed_fixed_effects_least_squares_slope():
+    mod = _report()
     steps = np.array([7000.0, 8000.0, 9000.0, 10000.0])
     scores = np.random.default_rng(0).normal(50, 5, (3, 4)) + np.array([[0.0], [20.0], [-10.0]])
     change, se = mod.trend(steps, scores)
@@ -28,3 +33,27 @@ def test_trend_is_the_seed_fixed_effects_least_squares_slope():
     # a curve that rises by exactly 6 points over the third, whatever each seed's level: no residual
     change, se = mod.trend(steps, np.array([[0.0], [40.0], [7.0]]) + 2e-3 * (steps - 7000.0))
     np.testing.assert_allclose([change, se], [6.0, 0.0], atol=1e-9)
+
+
+
+def _curve(method, seeds, means, sha="aa", **config):
+    return {"dataset": {"sha256": sha}, "config": dict(method=method, **config), "steps": [1000, 2000],
+            "models": [{"method": m, "seed": s, "mean": v} for m in method.split(",") for s, v in zip(seeds, means)]}
+
+
+def test_pooled_joins_seeds_of_one_setting_only():
+    """More seeds of one setting pool across files; a DT's files ignore the critic agents' settings (older files
+    saved None for them), a critic agent's do not (BRAC-v at alpha 1 and 3 are two settings), nor other data."""
+    mod = _report()
+    curves = {"dt-a": _curve("dt", [0, 1], [[10.0, 20.0], [30.0, 40.0]], ac_hidden=None),
+              "dt-b": _curve("dt", [3], [[50.0, 60.0]], ac_hidden=256),
+              "dt-other-data": _curve("dt", [4], [[0.0, 0.0]], sha="bb"),
+              "brac-1": _curve("brac-v", [0], [[1.0, 2.0]], brac_alpha=1.0),
+              "brac-1-more": _curve("brac-v", [3], [[3.0, 6.0]], brac_alpha=1.0),
+              "brac-3": _curve("brac-v", [5], [[100.0, 100.0]], brac_alpha=3.0)}
+    rows = mod.pooled(curves)
+    assert {r["pool"] for r in rows} == {"dt-a + dt-b", "brac-1 + brac-1-more"}
+    dt = [(r["step"], r["seeds"], r["mean"], r["std"]) for r in rows if r["pool"] == "dt-a + dt-b"]
+    np.testing.assert_allclose(dt, [(1000, 3, 30.0, 20.0), (2000, 3, 40.0, 20.0)])
+    brac = [(r["step"], r["mean"]) for r in rows if r["method"] == "brac-v"]
+    np.testing.assert_allclose(brac, [(1000, 2.0), (2000, 4.0)])
