@@ -160,9 +160,14 @@ def _schedule(row: dict) -> tuple:
 def programs_of(rows: list[dict]) -> dict[str, list[dict]]:
     """One cell's result rows with a ``curve``, grouped by their evaluation and loss steps (the DT family's 10k
     steps and each critic agent's own schedule cannot share one mean), each group labelled by its methods:
-    ``{"iql": [...], "td3bc": [...]}``, the input for one :func:`curves_from_results` each."""
+    ``{"iql": [...], "td3bc": [...]}``, the input for one :func:`curves_from_results` each. Two programs of the
+    same methods on other schedules keep apart, the second labelled with its evaluation steps too."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         if r["r"].get("curve"):
             groups.setdefault(_schedule(r), []).append(r)
-    return {"+".join(dict.fromkeys(r["method"] for r in g)): g for g in groups.values()}
+    out: dict[str, list[dict]] = {}
+    for (steps, _), g in groups.items():
+        label = "+".join(dict.fromkeys(r["method"] for r in g))
+        out[label if label not in out else f"{label} (evaluated at {list(steps)})"] = g
+    return out

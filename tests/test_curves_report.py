@@ -35,7 +35,6 @@ def test_trend_is_the_seed_fixed_effects_least_squares_slope():
     np.testing.assert_allclose([change, se], [6.0, 0.0], atol=1e-9)
 
 
-
 def _curve(method, seeds, means, sha="aa", **config):
     return {"dataset": {"sha256": sha}, "config": dict(method=method, **config), "steps": [1000, 2000],
             "models": [{"method": m, "seed": s, "mean": v} for m in method.split(",") for s, v in zip(seeds, means)]}

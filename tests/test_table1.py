@@ -268,6 +268,10 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path):
     rows.append({"env": "walker", "dataset": "medium-expert", "method": "iql", "seed": 0, "r": {"curve": iql}})
     assert {k: [(r["method"], r["seed"]) for r in g] for k, g in table1.programs_of(rows).items()} == {
         "dt": [("dt", 0), ("dt", 1)], "iql": [("iql", 0)]}
+    other = [{"env": "walker", "dataset": "medium-expert", "method": "iql", "seed": 1,
+              "r": {"curve": dict(iql, step=[60, 120], loss_step=[60, 120])}}]  # the same method, another schedule
+    assert {k: [r["seed"] for r in g] for k, g in table1.programs_of(rows + other).items()} == {
+        "dt": [0, 1], "iql": [0], "iql (evaluated at [60, 120])": [1]}
     with pytest.raises(ValueError, match="programs_of"):
         table1.curves_from_results(rows)
     landed = {"medium/walker", "medium/hopper", "medium-expert/hopper", "medium-expert/walker"}
