@@ -46,6 +46,7 @@ def name_of(a) -> str:
     extra += f"-wu{a.warmup}" if a.warmup is not None else ""
     extra += f"-alpha{a.brac_alpha:g}" if a.brac_alpha is not None else ""
     extra += f"-{a.steps}steps" if a.steps != DEFAULT_STEPS else ""  # a cosine run's schedule ends at its steps
+    extra += f"-{a.tag}" if a.tag else ""
     return f"{a.env}-{a.dataset}-{a.model}-k{a.context}{extra}"
 
 
@@ -100,7 +101,8 @@ def collect(run_dir: str, res: dict) -> dict:
     """The evaluations of ``metrics.jsonl``: ``{"steps": [...], "models": [{"method", "seed", "mean": [...],
     "std": [...]}]}`` plus what the run was (config, dataset, physics)."""
     with open(os.path.join(run_dir, "metrics.jsonl")) as f:
-        evals = [r for r in map(json.loads, filter(str.strip, f)) if "eval_normalized_score" in r]
+        records = [json.loads(line) for line in f if line.strip()]
+    evals = [r for r in records if "eval_normalized_score" in r]
     models = [{"method": m["method"], "seed": m["seed"], "mean": [], "std": []} for m in res["models"]]
     if any("eval_raw_normalized_score" in r for r in evals):  # --ema: periodic evaluations scored the raw ones too
         models += [{"method": m["method"] + " (raw params)", "seed": m["seed"], "mean": [], "std": []}
@@ -123,8 +125,17 @@ def collect(run_dir: str, res: dict) -> dict:
     return {"command": command,
             "config": cfg, "dataset": {k: res["dataset"][k] for k in ("path", "sha256", "episodes", "transitions",
                                                                         "normalized_score_mean")},
-            "physics": res.get("physics"), "references": res.get("references"),
+            "physics": res.get("physics"), "references": res.get("references"), "device": device(),
+            "train_seconds": round(sum(r.get("chunk_seconds", 0.0) for r in records), 1),
             "steps": [r["step"] for r in evals], "episodes": [r["eval_episodes"] for r in evals], "models": models}
+
+
+def device() -> str:
+    """What trained the curve: the JAX backend's first device (``cpu``, or e.g. ``gpu: NVIDIA H200``)."""
+    import jax
+
+    d = jax.devices()[0]
+    return d.platform if d.platform == "cpu" else f"{d.platform}: {d.device_kind}"
 
 
 CELLS = "walker:medium,hopper:medium-replay,halfcheetah:medium-expert"
@@ -178,7 +189,7 @@ def ties(cells: str = CELLS, cost_sets=(None,), beta: float = 1.0, alpha_max=Non
     return rows
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("action", choices=["run", "snapshot", "report", "ties"],
                    help="snapshot: commit the curve so far of an unfinished run (same flags as its run)")
@@ -202,11 +213,17 @@ def main(argv=None) -> int:
                    "preset's: cpu 500, paper 10k)")
     p.add_argument("--brac-alpha", type=float, default=None, help="BRAC-v's alpha (default: the config's 0.1)")
     p.add_argument("--runs-root", default="runs/curves")
+    p.add_argument("--tag", default="", help="appended to the curve's name: a run on another machine's recording "
+                   "of the data (e.g. h200) keeps its own file")
     p.add_argument("--cells", default=CELLS, help="ties: env:dataset,...")
     p.add_argument("--cost-sets", nargs="+", default=["default"], help="ties: cost sets (comma-separated metrics; "
                    "default: the env's engineered costs)")
     p.add_argument("--alpha-max", type=float, default=None, help="ties: a cap on alpha")
-    a = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    a = build_parser().parse_args(argv)
     if a.action == "ties":
         ties(a.cells, [None if c == "default" else c for c in a.cost_sets], alpha_max=a.alpha_max)
         return 0

@@ -198,7 +198,9 @@ def report() -> str:
                   f"`{curve['command']}`; data `{os.path.basename(ds['path'])}` (sha256 {ds['sha256'][:12]}, "
                   f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised "
                   f"{ds['normalized_score_mean']:.1f}); {model_of(c)}; physics "
-                  f"{(curve.get('physics') or {}).get('physics')}.",
+                  f"{(curve.get('physics') or {}).get('physics')}"
+                  + (f"; trained on {curve['device']} ({curve['train_seconds']:.0f} s of training steps)"
+                     if curve.get("device", "cpu") != "cpu" else "") + ".",
                   "", "| method | step | seeds x episodes | mean | std between seeds | SE of one seed (episodes) | "
                   "seeds for ±3 points |", "|---|---|---|---|---|---|---|"]
         lines += [f"| {r['method']} | {r['step']} | {r['seeds']} x {r['episodes']} | {r['mean']:.1f} | "

@@ -56,3 +56,18 @@ def test_pooled_joins_seeds_of_one_setting_only():
     np.testing.assert_allclose(dt, [(1000, 3, 30.0, 20.0), (2000, 3, 40.0, 20.0)])
     brac = [(r["step"], r["mean"]) for r in rows if r["method"] == "brac-v"]
     np.testing.assert_allclose(brac, [(1000, 2.0), (2000, 4.0)])
+
+
+def test_a_tagged_curve_keeps_its_own_file():
+    """``--tag`` (a run on another machine's recording) names its own curve file, so it cannot overwrite this
+    machine's curve of the same flags; the flags that name a curve still do."""
+    path = os.path.join(ROOT, "experiments", "curves.py")
+    spec = importlib.util.spec_from_file_location("curves_cli", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    flags = ["run", "--env", "walker", "--dataset", "medium", "--model", "paper", "--steps", "10000",
+             "--warmup", "500", "--lr-schedule", "cosine", "--ema", "0.999"]
+    plain = mod.name_of(mod.build_parser().parse_args(flags))
+    assert plain == "walker-medium-paper-k20-cosine-ema0.999-wu500-10000steps"  # a committed curve file
+    assert mod.name_of(mod.build_parser().parse_args(flags + ["--tag", "h200"])) == plain + "-h200"
+    assert mod.device() == "cpu"

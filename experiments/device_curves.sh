@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# Score curves on a GPU machine in one command of at most ~10 minutes (issue 25, item 1): the paper's 128 x 3 model
+# and the cpu preset's 64 x 2 on hopper medium-replay and halfcheetah medium-expert, each pair on the same data
+# (recorded there, with C MuJoCo: its hash differs from this CPU's, so the files carry --tag h200), then longer
+# schedules on walker medium and halfcheetah medium-expert. Stages run in this order while the time left allows
+# their estimate (STAGES="a b" in the environment: those only); each finished curve is tarred into $OUT at once
+# (JSON, PNG, the run's config, dataset.json and metrics.jsonl), so a cut keeps them.
+#
+#   on the device tool: carry [".whl"], command
+#     source .whl/setup.sh && bash experiments/device_curves.sh $OUT 555
+#   (2026-12-04, H200: hmr-paper, hcme-paper, hmr-cpu in 518 s, hcme-cpu in a second command; next:
+#     source .whl/setup.sh && STAGES="walker-cpu-50k hcme-cpu-40k" bash experiments/device_curves.sh $OUT 555)
+#   here: for f in <files_at>/*.tgz; do tar xzf $f; done; python experiments/curves.py report
+#
+# .whl: bash ../shared/device/fetch-wheels.sh (../shared/device/README.md). EXTRA (env) is appended to every
+# curves.py command: a smoke test here, e.g. EXTRA="--steps 20 --eval-every 10 --episodes 2 --seeds 1".
+set -uo pipefail
+out=${1:?usage: device_curves.sh OUT_DIR [SECONDS]}
+limit=${2:-560}
+mkdir -p "$out"
+export JAX_DEFAULT_MATMUL_PRECISION=${JAX_DEFAULT_MATMUL_PRECISION:-highest}  # f32 as on the CPU, not TF32
+common="--episodes 30 --seeds 3 --lr-schedule cosine --ema 0.999 --physics mujoco --tag h200"
+paper="--model paper --steps 10000 --warmup 500 --eval-every 2000"  # the walker medium 128 x 3 curve's flags
+cpu="--model cpu --steps 10000 --eval-every 1000"                    # the 64 x 2 curves' flags
+nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null | tee "$out/device.txt"
+nproc | tee -a "$out/device.txt"
+
+stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
+  local name=$1 est=$2
+  shift 2
+  local left=$((limit - SECONDS))
+  if [ -n "${STAGES:-}" ] && [[ " $STAGES " != *" $name "* ]]; then
+    return
+  fi
+  if ((left < est)); then
+    echo "== skip $name: ${left}s left, estimate ${est}s"
+    return
+  fi
+  echo "== $name (${left}s left, estimate ${est}s): python experiments/curves.py run $* ${EXTRA:-}"
+  local t0=$SECONDS
+  # shellcheck disable=SC2086
+  local log=/tmp/device_curves_$name.log
+  timeout $((left - 10)) python experiments/curves.py run "$@" ${EXTRA:-} >"$log" 2>&1
+  echo "   rc $? after $((SECONDS - t0))s"
+  grep -v "it/s\]\|s/it\]" "$log" | tail -n 4
+  local run
+  run=$(find runs/curves -maxdepth 1 -newer "$out/device.txt" -name '*h200*' -type d | sort | tail -n 1)
+  [ -n "$run" ] || return
+  local base
+  base=$(basename "$run")
+  tar czf "$out/$name.tgz" "$run"/{config.json,dataset.json,metrics.jsonl} \
+    $(ls "experiments/results/curves/$base".{json,png} 2>/dev/null) -C /tmp "$(basename "$log")"
+  touch "$out/device.txt"  # the next stage's run directory is newer than this
+}
+
+# shellcheck disable=SC2086
+{
+  stage hmr-paper 150 --env hopper --dataset medium-replay $paper $common
+  stage hcme-paper 200 --env halfcheetah --dataset medium-expert $paper $common
+  stage hmr-cpu 120 --env hopper --dataset medium-replay $cpu $common
+  stage hcme-cpu 120 --env halfcheetah --dataset medium-expert $cpu $common
+  stage walker-cpu-50k 200 --env walker --dataset medium --model cpu --steps 50000 --eval-every 5000 \
+    --chunk-steps 1000 --methods minsubdt,dt,bc $common
+  stage hcme-cpu-40k 160 --env halfcheetah --dataset medium-expert --model cpu --steps 40000 --eval-every 4000 \
+    --chunk-steps 1000 $common
+}
+echo "== done at ${SECONDS}s"
