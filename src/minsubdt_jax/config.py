@@ -156,7 +156,9 @@ PRESETS = {
 # per agent family (issue 25): a critic agent's preset values, chosen by its own 3-seed curve (walker medium, EMA),
 # at its reference's rates. At `study` an agent without an entry has not converged here: table1.py refuses it
 _CRITIC_STUDY = dict(chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)
-CRITIC_PRESETS = {"study": {"iql": dict(_CRITIC_STUDY, steps=60_000), "td3bc": dict(_CRITIC_STUDY, steps=100_000)}}
+CRITIC_PRESETS = {"study": {"iql": dict(_CRITIC_STUDY, steps=60_000), "td3bc": dict(_CRITIC_STUDY, steps=100_000),
+                             # 200 iterations of the reference's 1200 steps; its iterations swing, so a longer average
+                             "awr": dict(_CRITIC_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999)}}
 
 
 def preset_config(name: str, method: str = Config.method) -> Config:
