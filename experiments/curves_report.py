@@ -199,8 +199,8 @@ def report() -> str:
                   f"{ds['episodes']} episodes, {ds['transitions']} transitions, normalised "
                   f"{ds['normalized_score_mean']:.1f}); {model_of(c)}; physics "
                   f"{(curve.get('physics') or {}).get('physics')}"
-                  + (f"; trained on {curve['device']} ({curve['train_seconds']:.0f} s of training steps)"
-                     if curve.get("device", "cpu") != "cpu" else "") + ".",
+                  + (f"; trained on {pf['backend']}: {pf['device']} ({curve['train_seconds']:.0f} s of training "
+                     "steps)" if (pf := curve.get("platform") or {}).get("backend", "cpu") != "cpu" else "") + ".",
                   "", "| method | step | seeds x episodes | mean | std between seeds | SE of one seed (episodes) | "
                   "seeds for ±3 points |", "|---|---|---|---|---|---|---|"]
         lines += [f"| {r['method']} | {r['step']} | {r['seeds']} x {r['episodes']} | {r['mean']:.1f} | "

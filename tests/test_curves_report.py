@@ -2,6 +2,7 @@
 fit with a dummy column per seed and its covariance sigma^2 (X^T X)^-1."""
 
 import importlib.util
+import json
 import os
 
 import numpy as np
@@ -58,9 +59,10 @@ def test_pooled_joins_seeds_of_one_setting_only():
     np.testing.assert_allclose(brac, [(1000, 2.0), (2000, 4.0)])
 
 
-def test_a_tagged_curve_keeps_its_own_file():
+def test_a_tagged_curve_keeps_its_own_file(tmp_path):
     """``--tag`` (a run on another machine's recording) names its own curve file, so it cannot overwrite this
-    machine's curve of the same flags; the flags that name a curve still do."""
+    machine's curve of the same flags; the flags that name a curve still do. The curve keeps the run's own
+    platform record and its training seconds summed over the chunks."""
     path = os.path.join(ROOT, "experiments", "curves.py")
     spec = importlib.util.spec_from_file_location("curves_cli", path)
     mod = importlib.util.module_from_spec(spec)
@@ -70,4 +72,12 @@ def test_a_tagged_curve_keeps_its_own_file():
     plain = mod.name_of(mod.build_parser().parse_args(flags))
     assert plain == "walker-medium-paper-k20-cosine-ema0.999-wu500-10000steps"  # a committed curve file
     assert mod.name_of(mod.build_parser().parse_args(flags + ["--tag", "h200"])) == plain + "-h200"
-    assert mod.device() == "cpu"
+    records = [{"step": 10, "loss": 1.0, "chunk_seconds": 2.25}, {"step": 20, "loss": 0.5, "chunk_seconds": 1.5},
+               {"step": 20, "eval_episodes": 2, "eval_normalized_score": [40.0], "eval_normalized_score_std": [3.0]}]
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    gpu = {"backend": "gpu", "device": "NVIDIA H200", "devices": 1, "processes": 1, "jax": "0.11.2"}
+    res = {"config": {}, "platform": gpu, "models": [{"method": "dt", "seed": 0}],
+           "dataset": {"path": "d.hdf5", "sha256": "aa", "episodes": 1, "transitions": 1, "normalized_score_mean": 1.0}}
+    curve = mod.collect(str(tmp_path), res)
+    assert (curve["platform"], curve["train_seconds"], curve["steps"]) == (gpu, 3.8, [20])
+    assert curve["models"] == [{"method": "dt", "seed": 0, "mean": [40.0], "std": [3.0]}]
