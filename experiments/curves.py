@@ -185,8 +185,9 @@ def ties(cells: str = CELLS, cost_sets=(None,), beta: float = 1.0, alpha_max=Non
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("action", choices=["run", "snapshot", "report", "ties"],
-                   help="snapshot: commit the curve so far of an unfinished run (same flags as its run)")
+    p.add_argument("action", choices=["run", "snapshot", "report", "ties", "name"],
+                   help="snapshot: commit the curve so far of an unfinished run (same flags as its run); name: print "
+                   "the run's name (its runs/curves/ directory and results file)")
     p.add_argument("--env", default="walker")
     p.add_argument("--dataset", default="medium")
     p.add_argument("--methods", default=DEFAULT_METHODS)
@@ -218,6 +219,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     a = build_parser().parse_args(argv)
+    if a.action == "name":
+        print(name_of(a))
+        return 0
     if a.action == "ties":
         ties(a.cells, [None if c == "default" else c for c in a.cost_sets], alpha_max=a.alpha_max)
         return 0

@@ -37,20 +37,15 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
     return
   fi
   echo "== $name (${left}s left, estimate ${est}s): python experiments/curves.py run $* ${EXTRA:-}"
-  local t0=$SECONDS
+  local t0=$SECONDS log=/tmp/device_curves_$name.log base
   # shellcheck disable=SC2086
-  local log=/tmp/device_curves_$name.log
   timeout $((left - 10)) python experiments/curves.py run "$@" ${EXTRA:-} >"$log" 2>&1
   echo "   rc $? after $((SECONDS - t0))s"
   grep -v "it/s\]\|s/it\]" "$log" | tail -n 4
-  local run
-  run=$(find runs/curves -maxdepth 1 -newer "$out/device.txt" -name '*h200*' -type d | sort | tail -n 1)
-  [ -n "$run" ] || return
-  local base
-  base=$(basename "$run")
-  tar czf "$out/$name.tgz" "$run"/{config.json,dataset.json,metrics.jsonl} \
+  # shellcheck disable=SC2086
+  base=$(python experiments/curves.py name "$@" ${EXTRA:-}) && [ -d "runs/curves/$base" ] || return
+  tar czf "$out/$name.tgz" "runs/curves/$base"/{config.json,dataset.json,metrics.jsonl} \
     $(ls "experiments/results/curves/$base".{json,png} 2>/dev/null) -C /tmp "$(basename "$log")"
-  touch "$out/device.txt"  # the next stage's run directory is newer than this
 }
 
 # shellcheck disable=SC2086

@@ -59,7 +59,7 @@ def test_pooled_joins_seeds_of_one_setting_only():
     np.testing.assert_allclose(brac, [(1000, 2.0), (2000, 4.0)])
 
 
-def test_a_tagged_curve_keeps_its_own_file(tmp_path):
+def test_a_tagged_curve_keeps_its_own_file(tmp_path, capsys):
     """``--tag`` (a run on another machine's recording) names its own curve file, so it cannot overwrite this
     machine's curve of the same flags; the flags that name a curve still do. The curve keeps the run's own
     platform record and its training seconds summed over the chunks."""
@@ -72,6 +72,8 @@ def test_a_tagged_curve_keeps_its_own_file(tmp_path):
     plain = mod.name_of(mod.build_parser().parse_args(flags))
     assert plain == "walker-medium-paper-k20-cosine-ema0.999-wu500-10000steps"  # a committed curve file
     assert mod.name_of(mod.build_parser().parse_args(flags + ["--tag", "h200"])) == plain + "-h200"
+    assert mod.main(["name"] + flags[1:] + ["--tag", "h200"]) == 0  # what device_curves.sh tars
+    assert capsys.readouterr().out == plain + "-h200\n"
     records = [{"step": 10, "loss": 1.0, "chunk_seconds": 2.25}, {"step": 20, "loss": 0.5, "chunk_seconds": 1.5},
                {"step": 20, "eval_episodes": 2, "eval_normalized_score": [40.0], "eval_normalized_score_std": [3.0]}]
     (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
