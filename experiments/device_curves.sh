@@ -9,7 +9,8 @@
 #   on the device tool: carry [".whl"], command
 #     source .whl/setup.sh && bash experiments/device_curves.sh $OUT 555
 #   (2026-12-04, H200: hmr-paper, hcme-paper, hmr-cpu in 518 s, hcme-cpu in a second command; next:
-#     source .whl/setup.sh && STAGES="walker-cpu-50k hcme-cpu-40k" bash experiments/device_curves.sh $OUT 555)
+#     source .whl/setup.sh && STAGES="walker-cpu-50k hcme-cpu-40k" bash experiments/device_curves.sh $OUT 545, 431 s;
+#     source .whl/setup.sh && STAGES="walker-cql-60k walker-bear-60k" bash experiments/device_curves.sh $OUT 350)
 #   here: for f in <files_at>/*.tgz; do tar xzf $f; done; python experiments/curves.py report
 #
 # .whl: bash ../shared/device/fetch-wheels.sh (../shared/device/README.md). EXTRA (env) is appended to every
@@ -58,5 +59,9 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
     --chunk-steps 1000 --methods minsubdt,dt,bc $common
   stage hcme-cpu-40k 160 --env halfcheetah --dataset medium-expert --model cpu --steps 40000 --eval-every 4000 \
     --chunk-steps 1000 $common
+  critic="--env walker --dataset medium --model cpu --steps 60000 --eval-every 6000 --chunk-steps 1000 --episodes 30
+    --seeds 3 --ema 0.999 --physics mujoco --tag h200"  # the CPU critic curves' flags (constant rates)
+  stage walker-cql-60k 200 $critic --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-minutes)
+  stage walker-bear-60k 150 $critic --methods bear  # the CPU's BEAR curve stops at 21k, still rising
 }
 echo "== done at ${SECONDS}s"
