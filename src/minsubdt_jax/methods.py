@@ -6,6 +6,8 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``minsubdt``           MinSubDT, engineered costs: DT on surrogate returns ``-min-subdominance`` (seed eq. 2)
 ``minsubdt-learned``   MinSubDT, costs learned from preference pairs (seed eq. 3)
 ``dt``                 Decision Transformer on the dataset's true rewards
+``dt-total``           DT whose return token is the episode's true return, constant over the episode (an ablation:
+                       MinSubDT's token structure, one label per trajectory, with the true return's ranking)
 ``bc``                 behaviour cloning with the DT's architecture and context, every return token 0
 ``bc-mlp``             behaviour cloning with an MLP on the current state (the classic BC baseline)
 ``iql``                IQL (Kostrikov et al. 2021) on the true rewards, scaled by 1000 / (max - min return)
@@ -44,6 +46,10 @@ def _surrogate(data, min_subdom):
 
 def _true(data, min_subdom):
     return data.rewards
+
+
+def _total(data, min_subdom):
+    return np.asarray(surrogate_rewards(-data.returns, data.lengths, data.max_len))
 
 
 def _zero(data, min_subdom):
@@ -102,6 +108,8 @@ METHODS = {m.name: m for m in (
     Method("minsubdt-learned", "MinSubDT (learned costs)", "dt", "learned", _surrogate, returns_alias="learned"),
     Method("dt", "DT", "dt", "engineered", _true, rtg_scale=1000.0, target_from_data=True, subtract_rewards=True,
            returns_alias="true"),
+    Method("dt-total", "DT (episode return, constant token)", "dt", "engineered", _total, rtg_scale=1000.0,
+           target_from_data=True),
     Method("bc", "BC (DT architecture)", "dt", "engineered", _zero, returns_alias="none"),
     Method("bc-mlp", "BC (MLP)", "mlp", "engineered", _zero),
     Method("iql", "IQL", "iql", "engineered", _true, rtg_scale=None),
