@@ -10,7 +10,8 @@
 #     source .whl/setup.sh && bash experiments/device_curves.sh $OUT 555
 #   (2026-12-04, H200: hmr-paper, hcme-paper, hmr-cpu in 518 s, hcme-cpu in a second command; next:
 #     source .whl/setup.sh && STAGES="walker-cpu-50k hcme-cpu-40k" bash experiments/device_curves.sh $OUT 545, 431 s;
-#     source .whl/setup.sh && STAGES="walker-cql-60k walker-bear-60k" bash experiments/device_curves.sh $OUT 350)
+#     source .whl/setup.sh && STAGES="walker-cql-60k walker-bear-60k" bash experiments/device_curves.sh $OUT 340:
+#     CQL in 264 s, BEAR skipped for time)
 #   here: for f in <files_at>/*.tgz; do tar xzf $f; done; python experiments/curves.py report
 #
 # .whl: bash ../shared/device/fetch-wheels.sh (../shared/device/README.md). EXTRA (env) is appended to every
