@@ -4,7 +4,7 @@
 # (recorded there, with C MuJoCo: its hash differs from this CPU's, so the files carry --tag h200), then longer
 # schedules on walker medium and halfcheetah medium-expert. Stages run in this order while the time left allows
 # their estimate (STAGES="a b" in the environment: those only); each finished curve is tarred into $OUT at once
-# (JSON, PNG, the run's config, dataset.json and metrics.jsonl), so a cut keeps them.
+# (JSON, PNG, the run's config, dataset.json, metrics.jsonl and the stage's log), so a cut keeps them.
 #
 #   on the device tool: carry [".whl"], command
 #     source .whl/setup.sh && bash experiments/device_curves.sh $OUT 555
@@ -46,8 +46,9 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
   grep -v "it/s\]\|s/it\]" "$log" | tail -n 4
   # shellcheck disable=SC2086
   base=$(python experiments/curves.py name "$@" ${EXTRA:-}) && [ -d "runs/curves/$base" ] || return
-  tar czf "$out/$name.tgz" "runs/curves/$base"/{config.json,dataset.json,metrics.jsonl} \
-    $(ls "experiments/results/curves/$base".{json,png} 2>/dev/null) -C /tmp "$(basename "$log")"
+  cp "$log" "runs/curves/$base/device_curves.log"  # beside its run (runs/ is ignored), not in the repo root
+  tar czf "$out/$name.tgz" "runs/curves/$base"/{config.json,dataset.json,metrics.jsonl,device_curves.log} \
+    $(ls "experiments/results/curves/$base".{json,png} 2>/dev/null)
 }
 
 # shellcheck disable=SC2086
