@@ -11,7 +11,9 @@
 #   (2026-12-04, H200: hmr-paper, hcme-paper, hmr-cpu in 518 s, hcme-cpu in a second command; next:
 #     source .whl/setup.sh && STAGES="walker-cpu-50k hcme-cpu-40k" bash experiments/device_curves.sh $OUT 545, 431 s;
 #     source .whl/setup.sh && STAGES="walker-cql-60k walker-bear-60k" bash experiments/device_curves.sh $OUT 340:
-#     CQL in 264 s, BEAR skipped for time)
+#     CQL in 264 s, BEAR skipped for time; a third lease:
+#     source .whl/setup.sh && STAGES="walker-paper-50k" bash experiments/device_curves.sh $OUT 560, 503 s;
+#     source .whl/setup.sh && STAGES="walker-bear-60k" bash experiments/device_curves.sh $OUT 290, 187 s)
 #   here: for f in <files_at>/*.tgz; do tar xzf $f; done; python experiments/curves.py report
 #
 # .whl: bash ../shared/device/fetch-wheels.sh (../shared/device/README.md). EXTRA (env) is appended to every
@@ -61,6 +63,8 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
     --chunk-steps 1000 --methods minsubdt,dt,bc $common
   stage hcme-cpu-40k 160 --env halfcheetah --dataset medium-expert --model cpu --steps 40000 --eval-every 4000 \
     --chunk-steps 1000 $common
+  stage walker-paper-50k 420 --env walker --dataset medium --model paper --steps 50000 --warmup 500 \
+    --eval-every 5000 --chunk-steps 1000 --methods minsubdt,dt,bc $common  # walker-cpu-50k at 128 x 3 (lr 1e-4)
   critic="--env walker --dataset medium --model cpu --steps 60000 --eval-every 6000 --chunk-steps 1000 --episodes 30
     --seeds 3 --ema 0.999 --physics mujoco --tag h200"  # the CPU critic curves' flags (constant rates)
   stage walker-cql-60k 200 $critic --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-minutes)
