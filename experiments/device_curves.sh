@@ -65,6 +65,10 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
     --chunk-steps 1000 $common
   stage walker-paper-50k 420 --env walker --dataset medium --model paper --steps 50000 --warmup 500 \
     --eval-every 5000 --chunk-steps 1000 --methods minsubdt,dt,bc $common  # walker-cpu-50k at 128 x 3 (lr 1e-4)
+  # the paper's own schedule (constant rate after a 10k warm-up, 100k steps), raw and EMA parameters scored; ~560 s
+  # in all, more than one command: the estimate lets it start, and the same command again resumes it (warm machine)
+  stage walker-paper-100k 300 --env walker --dataset medium --model paper --steps 100000 --eval-every 10000 \
+    --chunk-steps 1000 --methods minsubdt,dt --episodes 30 --seeds 3 --ema 0.999 --physics mujoco --tag h200
   critic="--env walker --dataset medium --model cpu --steps 60000 --eval-every 6000 --chunk-steps 1000 --episodes 30
     --seeds 3 --ema 0.999 --physics mujoco --tag h200"  # the CPU critic curves' flags (constant rates)
   stage walker-cql-60k 200 $critic --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-minutes)
