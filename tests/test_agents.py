@@ -53,10 +53,11 @@ def test_mlp_agent_learns_a_state_to_action_map():
 def test_methods_make_their_return_tokens(small_dataset_path):
     """minsubdt: -min-subdominance (eq. 2, engineered costs, leave-one-out) at every step of an episode; dt: the
     true returns-to-go / 1000 and the dataset's best return as target; dt-total: the episode's return / 1000 at every
-    step, the same target; bc and bc-mlp: zeros."""
+    step, the same target; dt-tied: dt-total's tokens, but the demos at min-subdominance K * beta share their mean
+    return; bc and bc-mlp: zeros."""
     base = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=small_dataset_path, episode_length=60)
     preps = {m: prepare(validate(dataclasses.replace(base, method=m)), get_method(m), verbose=False)
-             for m in ("minsubdt", "dt", "dt-total", "bc-mlp")}
+             for m in ("minsubdt", "dt", "dt-total", "dt-tied", "bc-mlp")}
     data = preps["dt"].source.data
     valid = data.valid_mask()
     f = np.asarray(engineered_costs("hopper", data.observations, data.lengths, 60, terminated=data.terminals))
@@ -70,6 +71,12 @@ def test_methods_make_their_return_tokens(small_dataset_path):
     np.testing.assert_allclose(np.asarray(preps["dt-total"].sampler.returns_to_go),
                                np.where(valid, true_rtg[:, :1], 0), rtol=1e-5, atol=1e-6)
     assert preps["dt-total"].target_return == pytest.approx(preps["dt"].target_return)
+    tied = np.isclose(ms, 2 * base.beta)  # alpha = 0 in both engineered metrics
+    assert 2 <= tied.sum() < len(ms)  # the data has a tie to pool, and demos outside it
+    labels = np.where(tied, data.returns[tied].mean(), data.returns) / 1000.0
+    np.testing.assert_allclose(np.asarray(preps["dt-tied"].sampler.returns_to_go), np.where(valid, labels[:, None], 0),
+                               rtol=1e-5, atol=1e-6)
+    assert preps["dt-tied"].target_return == pytest.approx(preps["dt"].target_return)
     assert not np.asarray(preps["bc-mlp"].sampler.returns_to_go).any()
 
 

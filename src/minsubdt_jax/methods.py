@@ -8,6 +8,8 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``dt``                 Decision Transformer on the dataset's true rewards
 ``dt-total``           DT whose return token is the episode's true return, constant over the episode (an ablation:
                        MinSubDT's token structure, one label per trajectory, with the true return's ranking)
+``dt-tied``            ``dt-total`` whose demos tied at MinSubDT's largest min-subdominance (K * beta: alpha = 0 in
+                       every metric) share one label, their mean return (an ablation: MinSubDT's tie, true returns)
 ``bc``                 behaviour cloning with the DT's architecture and context, every return token 0
 ``bc-mlp``             behaviour cloning with an MLP on the current state (the classic BC baseline)
 ``iql``                IQL (Kostrikov et al. 2021) on the true rewards, scaled by 1000 / (max - min return)
@@ -50,6 +52,13 @@ def _true(data, min_subdom):
 
 def _total(data, min_subdom):
     return np.asarray(surrogate_rewards(-data.returns, data.lengths, data.max_len))
+
+
+def _tied(data, min_subdom):
+    ms = np.asarray(min_subdom)
+    tied = ms >= ms.max() - 1e-5  # the demos at the largest min-subdominance, K * beta when any is tied (eq. 2)
+    labels = np.where(tied, np.mean(data.returns[tied]), data.returns)
+    return np.asarray(surrogate_rewards(-labels, data.lengths, data.max_len))
 
 
 def _zero(data, min_subdom):
@@ -109,6 +118,8 @@ METHODS = {m.name: m for m in (
     Method("dt", "DT", "dt", "engineered", _true, rtg_scale=1000.0, target_from_data=True, subtract_rewards=True,
            returns_alias="true"),
     Method("dt-total", "DT (episode return, constant token)", "dt", "engineered", _total, rtg_scale=1000.0,
+           target_from_data=True),
+    Method("dt-tied", "DT (episode return, MinSubDT's tie)", "dt", "engineered", _tied, rtg_scale=1000.0,
            target_from_data=True),
     Method("bc", "BC (DT architecture)", "dt", "engineered", _zero, returns_alias="none"),
     Method("bc-mlp", "BC (MLP)", "mlp", "engineered", _zero),
