@@ -24,6 +24,7 @@ limit=${2:-560}
 mkdir -p "$out"
 export JAX_DEFAULT_MATMUL_PRECISION=${JAX_DEFAULT_MATMUL_PRECISION:-highest}  # f32 as on the CPU, not TF32
 common="--episodes 30 --seeds 3 --lr-schedule cosine --ema 0.999 --physics mujoco --tag h200"
+constant="--episodes 30 --seeds 3 --ema 0.999 --physics mujoco --tag h200"  # the same at a constant rate
 paper="--model paper --steps 10000 --warmup 500 --eval-every 2000"  # the walker medium 128 x 3 curve's flags
 cpu="--model cpu --steps 10000 --eval-every 1000"                    # the 64 x 2 curves' flags
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null | tee "$out/device.txt"
@@ -68,9 +69,9 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
   # the paper's own schedule (constant rate after a 10k warm-up, 100k steps), raw and EMA parameters scored; ~560 s
   # in all, more than one command: the estimate lets it start, and the same command again resumes it (warm machine)
   stage walker-paper-100k 300 --env walker --dataset medium --model paper --steps 100000 --eval-every 10000 \
-    --chunk-steps 1000 --methods minsubdt,dt --episodes 30 --seeds 3 --ema 0.999 --physics mujoco --tag h200
-  critic="--env walker --dataset medium --model cpu --steps 60000 --eval-every 6000 --chunk-steps 1000 --episodes 30
-    --seeds 3 --ema 0.999 --physics mujoco --tag h200"  # the CPU critic curves' flags (constant rates)
+    --chunk-steps 1000 --methods minsubdt,dt $constant
+  critic="--env walker --dataset medium --model cpu --steps 60000 --eval-every 6000 --chunk-steps 1000
+    $constant"  # the CPU critic curves' flags (constant rates)
   stage walker-cql-60k 200 $critic --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-minutes)
   stage walker-bear-60k 150 $critic --methods bear  # the CPU's BEAR curve stops at 21k, still rising
 }
