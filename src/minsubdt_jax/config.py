@@ -5,11 +5,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import typing
 from dataclasses import dataclass
 
 from .costs import check_costs
-from .flags import add_flags, base_type
+from .flags import add_flags, load_fields
 from .envs import DYNAMICS, PHYSICS
 from .loggers import logger_names
 from .methods import METHODS, RETURNS_ALIASES
@@ -260,43 +259,10 @@ def parse_args(argv=None) -> tuple[Config, bool]:
                              f"give one of them")
         args["method"] = RETURNS_ALIASES[alias]
     path = args.pop("config")
-    from_file = load_config_file(path) if path else {}
+    from_file = load_fields(path, Config, "python -m minsubdt_jax.train --help") if path else {}
     preset = args["preset"] or from_file.get("preset") or Config.preset
     given = {k: v for k, v in args.items() if v is not None}
     method = given.get("method") or from_file.get("method") or Config.method
     cfg = dataclasses.replace(preset_config(preset, method), **{**from_file, **given})
     return validate(cfg), resume
 
-
-def load_config_file(path: str) -> dict:
-    """The fields of a config file: JSON (a run's ``config.json``: every field) or YAML (``.yaml``/``.yml``: any
-    of them). Raises ValueError on a file that does not parse, an unknown field, or a value of the wrong type."""
-    try:
-        with open(path) as f:
-            text = f.read()
-        if path.endswith((".yaml", ".yml")):
-            import yaml
-
-            data = yaml.safe_load(text)
-        else:
-            data = json.loads(text)
-    except OSError as e:
-        raise ValueError(f"--config {path}: cannot read it ({e.strerror})") from None
-    except Exception as e:  # noqa: BLE001  (json.JSONDecodeError, yaml.YAMLError)
-        raise ValueError(f"--config {path}: does not parse ({type(e).__name__}: {str(e).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"--config {path}: needs a mapping of field names to values, got {type(data).__name__}")
-    hints = typing.get_type_hints(Config)
-    unknown = sorted(set(data) - set(hints))
-    if unknown:
-        raise ValueError(f"--config {path}: unknown field(s) {unknown}; the fields are Config's "
-                         f"(python -m minsubdt_jax.train --help)")
-    for k, v in data.items():
-        tp = base_type(hints[k])
-        optional = hints[k] is not tp
-        ok = (v is None and optional) or isinstance(v, tp) and not (tp is int and isinstance(v, bool)) or (
-            tp is float and isinstance(v, int) and not isinstance(v, bool))
-        if not ok:
-            raise ValueError(f"--config {path}: field {k!r} must be {tp.__name__}"
-                             f"{' or null' if optional else ''}, got {v!r}")
-    return {k: float(v) if base_type(hints[k]) is float and v is not None else v for k, v in data.items()}

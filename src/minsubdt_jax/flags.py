@@ -1,11 +1,12 @@
 """Flags from a dataclass: one ``--field-name`` per field, typed from its annotation, its help from the field's
 comment (as tyro reads them). :mod:`minsubdt_jax.config` and :mod:`minsubdt_jax.behavior.config` build their CLIs
-with it."""
+with it; :func:`load_fields` reads the train CLI's ``--config`` files."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import types
 import typing
 
@@ -61,3 +62,38 @@ def add_flags(parser: argparse.ArgumentParser, cls, choices: dict, presets: dict
         if f.name in choices:
             kw["choices"] = choices[f.name]
         parser.add_argument("--" + f.name.replace("_", "-"), **kw)
+
+
+def load_fields(path: str, cls, help_cmd: str) -> dict:
+    """The fields of ``cls`` (a dataclass) in a config file: JSON (a run's ``config.json``: every field) or YAML
+    (``.yaml``/``.yml``: any of them). Raises ValueError on a file that does not parse, an unknown field, or a
+    value of the wrong type."""
+    try:
+        with open(path) as f:
+            text = f.read()
+        if path.endswith((".yaml", ".yml")):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except OSError as e:
+        raise ValueError(f"--config {path}: cannot read it ({e.strerror})") from None
+    except Exception as e:  # noqa: BLE001  (json.JSONDecodeError, yaml.YAMLError)
+        raise ValueError(f"--config {path}: does not parse ({type(e).__name__}: {str(e).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--config {path}: needs a mapping of field names to values, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    unknown = sorted(set(data) - set(hints))
+    if unknown:
+        raise ValueError(f"--config {path}: unknown field(s) {unknown}; the fields are {cls.__name__}'s "
+                         f"({help_cmd})")
+    for k, v in data.items():
+        tp = base_type(hints[k])
+        optional = hints[k] is not tp
+        ok = (v is None and optional) or isinstance(v, tp) and not (tp is int and isinstance(v, bool)) or (
+            tp is float and isinstance(v, int) and not isinstance(v, bool))
+        if not ok:
+            raise ValueError(f"--config {path}: field {k!r} must be {tp.__name__}"
+                             f"{' or null' if optional else ''}, got {v!r}")
+    return {k: float(v) if base_type(hints[k]) is float and v is not None else v for k, v in data.items()}
