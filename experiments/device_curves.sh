@@ -13,7 +13,9 @@
 #     source .whl/setup.sh && STAGES="walker-cql-60k walker-bear-60k" bash experiments/device_curves.sh $OUT 340:
 #     CQL in 264 s, BEAR skipped for time; a third lease:
 #     source .whl/setup.sh && STAGES="walker-paper-50k" bash experiments/device_curves.sh $OUT 560, 503 s;
-#     source .whl/setup.sh && STAGES="walker-bear-60k" bash experiments/device_curves.sh $OUT 290, 187 s)
+#     source .whl/setup.sh && STAGES="walker-bear-60k" bash experiments/device_curves.sh $OUT 290, 187 s;
+#     not run yet: STAGES="walker-paper-100k" (twice) and STAGES="walker-cql-300k" (two or three times), each
+#     command $OUT 555 on a warm machine, the next one at once: idle_release_s is 30)
 #   here: for f in <files_at>/*.tgz; do tar xzf $f; done; python experiments/curves.py report
 #
 # .whl: bash ../shared/device/fetch-wheels.sh (../shared/device/README.md). EXTRA (env) is appended to every
@@ -74,5 +76,9 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
     $constant"  # the CPU critic curves' flags (constant rates)
   stage walker-cql-60k 200 $critic --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-minutes)
   stage walker-bear-60k 150 $critic --methods bear  # the CPU's BEAR curve stops at 21k, still rising
+  # CQL's 60k curve still moved (docs/convergence.md): 5x the steps, ~14 min of training for 3 models, so two or
+  # three commands in a row, each resuming the last (like walker-paper-100k)
+  stage walker-cql-300k 300 --env walker --dataset medium --model cpu --steps 300000 --eval-every 30000 \
+    --chunk-steps 1000 $constant --methods cql
 }
 echo "== done at ${SECONDS}s"
