@@ -72,13 +72,13 @@ stage() {  # stage TAR_NAME ESTIMATE_SECONDS curves.py-flags...
   # in all, more than one command: the estimate lets it start, and the same command again resumes it (warm machine)
   stage walker-paper-100k 300 --env walker --dataset medium --model paper --steps 100000 --eval-every 10000 \
     --chunk-steps 1000 --methods minsubdt,dt $constant
-  critic="--env walker --dataset medium --model cpu --steps 60000 --eval-every 6000 --chunk-steps 1000
-    $constant"  # the CPU critic curves' flags (constant rates)
-  stage walker-cql-60k 200 $critic --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-minutes)
-  stage walker-bear-60k 150 $critic --methods bear  # the CPU's BEAR curve stops at 21k, still rising
+  critic() {  # critic STEPS: the CPU critic curves' flags (constant rates), 10 evaluations
+    echo "--env walker --dataset medium --model cpu --steps $1 --eval-every $(($1 / 10)) --chunk-steps 1000 $constant"
+  }
+  stage walker-cql-60k 200 $(critic 60000) --methods cql  # CQL has no curve on the CPU (~6k steps per 10 CPU-min)
+  stage walker-bear-60k 150 $(critic 60000) --methods bear  # the CPU's BEAR curve stops at 21k, still rising
   # CQL's 60k curve still moved (docs/convergence.md): 5x the steps, ~14 min of training for 3 models, so two or
   # three commands in a row, each resuming the last (like walker-paper-100k)
-  stage walker-cql-300k 300 --env walker --dataset medium --model cpu --steps 300000 --eval-every 30000 \
-    --chunk-steps 1000 $constant --methods cql
+  stage walker-cql-300k 300 $(critic 300000) --methods cql
 }
 echo "== done at ${SECONDS}s"
