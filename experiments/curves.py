@@ -45,6 +45,7 @@ def name_of(a) -> str:
     extra += f"-seed{a.seed}" if a.seed else ""
     extra += f"-wu{a.warmup}" if a.warmup is not None else ""
     extra += f"-alpha{a.brac_alpha:g}" if a.brac_alpha is not None else ""
+    extra += f"-pre{a.pretrain_steps}" if a.pretrain_steps is not None else ""
     extra += f"-lr{a.lr:g}" if a.lr is not None else ""
     extra += f"-{a.steps}steps" if a.steps != DEFAULT_STEPS else ""  # a cosine run's schedule ends at its steps
     extra += f"-{a.tag}" if a.tag else ""
@@ -62,6 +63,7 @@ def run(a) -> dict:
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
                               out=out, **({} if a.warmup is None else {"warmup_steps": a.warmup}),
                               **({} if a.brac_alpha is None else {"brac_alpha": a.brac_alpha}),
+                              **({} if a.pretrain_steps is None else {"pretrain_steps": a.pretrain_steps}),
                               **({} if a.lr is None else {"learning_rate": a.lr}))
     res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
@@ -211,6 +213,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=float, default=None, help="peak learning rate (default: the model's preset's: cpu "
                    "3e-4, paper 1e-4)")
     p.add_argument("--brac-alpha", type=float, default=None, help="BRAC-v's alpha (default: the config's 0.1)")
+    p.add_argument("--pretrain-steps", type=int, default=None, help="BRAC-v's behaviour-policy steps, BEAR's "
+                   "warm-up (default: the config's, a fraction of --steps)")
     p.add_argument("--runs-root", default="runs/curves")
     p.add_argument("--tag", default="", help="appended to the curve's name: a run on another machine's recording "
                    "of the data (e.g. h200) keeps its own file")

@@ -74,6 +74,8 @@ def test_a_tagged_curve_keeps_its_own_file(tmp_path, capsys):
     assert mod.name_of(mod.build_parser().parse_args(flags + ["--tag", "h200"])) == plain + "-h200"
     lr = mod.name_of(mod.build_parser().parse_args(flags + ["--lr", "3e-4"]))  # a rate other than the model's
     assert lr == "walker-medium-paper-k20-cosine-ema0.999-wu500-lr0.0003-10000steps"
+    pre = mod.name_of(mod.build_parser().parse_args(flags + ["--pretrain-steps", "2000"]))  # BRAC-v's, BEAR's
+    assert pre == "walker-medium-paper-k20-cosine-ema0.999-wu500-pre2000-10000steps"
     assert mod.main(["name"] + flags[1:] + ["--tag", "h200"]) == 0  # what device_curves.sh tars
     assert capsys.readouterr().out == plain + "-h200\n"
     records = [{"step": 10, "loss": 1.0, "chunk_seconds": 2.25}, {"step": 20, "loss": 0.5, "chunk_seconds": 1.5},

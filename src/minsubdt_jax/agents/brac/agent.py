@@ -7,7 +7,8 @@ Choices, where the reference leaves them open or its stages do not fit one run:
 
 - **alpha = 0.1**, fixed: the reference's example command (``run_primal.sh``); its launcher's default is 1.0 and
   D4RL says it tuned alpha without saying to what. ``--brac-alpha`` sets it. On walker medium 0.1 does not
-  learn, 1.0 does but drops on one seed, 3.0 learns later (docs/convergence.md); none of the curves is flat.
+  learn, 1.0 does but drops on one seed, 3.0 learns later and drops on one seed too (docs/convergence.md); none
+  of the curves is flat.
 - **The behaviour policy is pretrained inside the run**: its first ``--pretrain-steps`` steps (default a fifth of
   ``--steps``; the reference trains it in a separate 1M-step run) train only it, and it is frozen after. Its MLE
   has no entropy bonus (the reference adds a learnt one).
