@@ -57,6 +57,19 @@ def stability(curve: dict) -> list[dict]:
     return rows
 
 
+FLAT_POINTS = 3.0  # issue 25: the 3-seed mean changes by <= 3 points over the last third
+UNRESOLVED_SE = 10.0  # a fit this loose could hide a 20-point change (a seed's collapse on walker) within 2 SE
+
+
+def flat_verdict(change: float, se: float) -> str:
+    """Issue 25's criterion on a fitted change over the last third (:func:`trend`): ``"yes"`` within ±3 points,
+    ``"no"`` beyond, ``"unresolved"`` within but with a standard error above 10 points, where seeds swinging by
+    tens of points between checkpoints leave a near-zero slope that shows nothing."""
+    if abs(change) > FLAT_POINTS:
+        return "no"
+    return "unresolved" if not se <= UNRESOLVED_SE else "yes"
+
+
 def trend(steps: np.ndarray, scores: np.ndarray) -> tuple[float, float]:
     """The change of a method's score over ``steps`` estimated from every checkpoint, not from two: a least-squares
     line with one intercept per seed and a common slope, fitted to ``scores`` ``[S, E]`` (seed x evaluation).
@@ -213,14 +226,15 @@ def report() -> str:
                       "score averaged over those checkpoints per seed; the change over the third as the last "
                       "evaluation minus the first (3-seed means), and as a line fitted to every checkpoint of every "
                       "seed (`curves_report.trend`: one intercept per seed, ± its standard error). Flat: the fitted "
-                      "change is within ±3 points (issue 25's criterion).", "",
+                      "change is within ±3 points (issue 25's criterion); unresolved: within, but its SE is above "
+                      "10 points (`curves_report.flat_verdict`).", "",
                       "| method | evaluations (from step) | checkpoint-to-checkpoint std | episode SE | "
                       "last-third average, mean ± std over seeds | last minus first of the third | "
                       "fitted change ± SE | flat |", "|---|---|---|---|---|---|---|---|"]
             lines += [f"| {r['method']} | {r['evaluations']} (from {r['from_step']}) | {r['checkpoint_std']:.1f} | "
                       f"{r['episode_se']:.1f} | {r['last_third_mean']:.1f} ± {r['last_third_between_seeds']:.1f} | "
                       f"{r['first_to_last']:+.1f} | {r['fitted_change']:+.1f} ± {r['fitted_change_se']:.1f} | "
-                      f"{'yes' if abs(r['fitted_change']) <= 3 else 'no'} |" for r in st]
+                      f"{flat_verdict(r['fitted_change'], r['fitted_change_se'])} |" for r in st]
         lines.append("")
     text = "\n".join(lines) + "\n"
     with open(os.path.join(HERE, "results", "curves.md"), "w") as f:

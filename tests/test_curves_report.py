@@ -36,6 +36,20 @@ def test_trend_is_the_seed_fixed_effects_least_squares_slope():
     np.testing.assert_allclose([change, se], [6.0, 0.0], atol=1e-9)
 
 
+def test_a_near_zero_slope_through_seeds_that_swing_by_tens_of_points_is_not_flat():
+    """BRAC-v at alpha 1.0 over 140k on walker medium (curves.md): per seed over its last third, two seeds jump
+    between ~10 and ~90. The fitted change is near 0 and within +-3, but with its SE of ~28 it shows nothing."""
+    mod = _report()
+    steps = np.array([98000.0, 112000.0, 126000.0, 140000.0])
+    swings = np.array([[2.0, 89.9, 19.8, 92.0], [92.0, 89.9, 91.3, 88.1], [86.4, 48.5, 83.1, 10.5]])
+    change, se = mod.trend(steps, swings)
+    assert abs(change) <= 3 and se > 25
+    assert mod.flat_verdict(change, se) == "unresolved"
+    assert mod.flat_verdict(-0.5, 4.7) == "yes"  # BC's 50k curve at lr 1e-4
+    assert mod.flat_verdict(-22.3, 18.3) == mod.flat_verdict(3.1, 0.0) == "no"
+    assert mod.flat_verdict(0.0, float("nan")) == "unresolved"  # one seed, two evaluations: no residual dof
+
+
 def _curve(method, seeds, means, sha="aa", **config):
     return {"dataset": {"sha256": sha}, "config": dict(method=method, **config), "steps": [1000, 2000],
             "models": [{"method": m, "seed": s, "mean": v} for m in method.split(",") for s, v in zip(seeds, means)]}
