@@ -57,14 +57,13 @@ def run(a) -> dict:
     from minsubdt_jax.train import train
 
     out = os.path.join(a.runs_root, name_of(a))
+    given = {"warmup_steps": a.warmup, "brac_alpha": a.brac_alpha, "pretrain_steps": a.pretrain_steps,
+             "learning_rate": a.lr}  # flags left unset keep the model's preset
     cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=a.seed,
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
-                              out=out, **({} if a.warmup is None else {"warmup_steps": a.warmup}),
-                              **({} if a.brac_alpha is None else {"brac_alpha": a.brac_alpha}),
-                              **({} if a.pretrain_steps is None else {"pretrain_steps": a.pretrain_steps}),
-                              **({} if a.lr is None else {"learning_rate": a.lr}))
+                              out=out, **{k: v for k, v in given.items() if v is not None})
     res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)

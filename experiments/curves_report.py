@@ -67,7 +67,7 @@ def flat_verdict(change: float, se: float) -> str:
     tens of points between checkpoints leave a near-zero slope that shows nothing."""
     if abs(change) > FLAT_POINTS:
         return "no"
-    return "unresolved" if not se <= UNRESOLVED_SE else "yes"
+    return "yes" if se <= UNRESOLVED_SE else "unresolved"  # a NaN SE (no residual dof) is unresolved
 
 
 def trend(steps: np.ndarray, scores: np.ndarray) -> tuple[float, float]:
@@ -226,8 +226,8 @@ def report() -> str:
                       "score averaged over those checkpoints per seed; the change over the third as the last "
                       "evaluation minus the first (3-seed means), and as a line fitted to every checkpoint of every "
                       "seed (`curves_report.trend`: one intercept per seed, ± its standard error). Flat: the fitted "
-                      "change is within ±3 points (issue 25's criterion); unresolved: within, but its SE is above "
-                      "10 points (`curves_report.flat_verdict`).", "",
+                      f"change is within ±{FLAT_POINTS:g} points (issue 25's criterion); unresolved: within, but its "
+                      f"SE is above {UNRESOLVED_SE:g} points (`curves_report.flat_verdict`).", "",
                       "| method | evaluations (from step) | checkpoint-to-checkpoint std | episode SE | "
                       "last-third average, mean ± std over seeds | last minus first of the third | "
                       "fitted change ± SE | flat |", "|---|---|---|---|---|---|---|---|"]
