@@ -11,6 +11,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results", "curves")
+FLAT_POINTS = 3.0  # issue 25: the 3-seed mean changes by <= 3 points over the last third
+UNRESOLVED_SE = 10.0  # a fit this loose could hide a 20-point change (a seed's collapse on walker) within 2 SE
 
 
 def noise(curve: dict) -> list[dict]:
@@ -28,7 +30,7 @@ def noise(curve: dict) -> list[dict]:
             rows.append({"method": method, "step": step, "episodes": curve["episodes"][j], "seeds": len(ms),
                          "mean": float(means.mean()), "between_seeds_std": between,
                          "episode_se": float(np.sqrt(np.mean(se ** 2))),
-                         "seeds_for_3_points": int(np.ceil((2 * between / 3) ** 2)) if np.isfinite(between) else None})
+                         "seeds_for_3_points": int(np.ceil((2 * between / FLAT_POINTS) ** 2)) if np.isfinite(between) else None})
     return rows
 
 
@@ -55,10 +57,6 @@ def stability(curve: dict) -> list[dict]:
                      "first_to_last": float(M[:, -1].mean() - M[:, 0].mean()),
                      **dict(zip(("fitted_change", "fitted_change_se"), trend(steps[last][keep], M)))})
     return rows
-
-
-FLAT_POINTS = 3.0  # issue 25: the 3-seed mean changes by <= 3 points over the last third
-UNRESOLVED_SE = 10.0  # a fit this loose could hide a 20-point change (a seed's collapse on walker) within 2 SE
 
 
 def flat_verdict(change: float, se: float) -> str:
