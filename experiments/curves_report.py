@@ -30,7 +30,8 @@ def noise(curve: dict) -> list[dict]:
             rows.append({"method": method, "step": step, "episodes": curve["episodes"][j], "seeds": len(ms),
                          "mean": float(means.mean()), "between_seeds_std": between,
                          "episode_se": float(np.sqrt(np.mean(se ** 2))),
-                         "seeds_for_3_points": int(np.ceil((2 * between / FLAT_POINTS) ** 2)) if np.isfinite(between) else None})
+                         "seeds_for_3_points": (int(np.ceil((2 * between / FLAT_POINTS) ** 2))
+                                                if np.isfinite(between) else None)})
     return rows
 
 
