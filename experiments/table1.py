@@ -10,11 +10,13 @@
 Every run (env x dataset x method x seed) is one model; its compact result goes to
 ``experiments/results/table1/{preset}/{name}.json`` (with the dataset's content hash and the platform), and a run
 whose result exists is skipped, so an interrupted sweep resumes where it stopped (the lowest missing seed of
-every cell first). In each env x dataset the methods missing the same consecutive seeds a..b train as one
-program, ``--method m1,m2,... --seeds S`` (a unit: up to 4 methods x 3 seeds = 12 models vmapped in one jitted
-step; with ``--whole-env``, the default at ``--preset paper``, an env's datasets too: 36 models, ``--dataset
-a,b,c``), checkpointed (resumable after a cut at any chunk, also across machines) in
-``runs/table1/{preset}/{env}-{dataset[+...]}-{m1+m2...}-s{a}-{b}``. The datasets are the named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across training seeds.
+every cell first); one trained with another config than the sweep's now (a changed preset) is an error. In each
+env x dataset the methods missing the same consecutive seeds a..b train as one program, ``--method m1,m2,...
+--seeds S`` (a unit: up to 4 methods x 3 seeds = 12 models vmapped in one jitted step; with ``--whole-env``, the
+default at ``--preset paper``, an env's datasets too: 36 models, ``--dataset a,b,c``), checkpointed (resumable
+after a cut at any chunk, also across machines) in ``runs/table1/{preset}/{env}-{dataset[+...]}-{m1+m2...}-s{a}-{b}``.
+The datasets are the named datasets of ``minsubdt_jax.data`` (recorded once, ``--dataset-seed 0``), fixed across
+training seeds.
 ``aggregate`` writes ``experiments/results/table1.md`` / ``.json`` (normalised score mean ± std over the
 seeds present, with their count; averages with and without medium-replay; the better-than-demonstrated
 report) and ``experiments/results/table1_costs_{env}.png`` (demos' vs rollouts' engineered cost features).
@@ -39,8 +41,9 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            markdown, plot_costs, versus_dt)
-from table1_units import (check_critic_settings, commit_results, compact, curves_from_results,  # noqa: E402,F401
-                          model_curve, per_seed_results, plan_units, programs_of, run_name, seed_runs)
+from table1_units import (check_critic_settings, check_not_stale, commit_results, compact,  # noqa: E402,F401
+                          curves_from_results, model_curve, per_seed_results, plan_units, programs_of, run_name,
+                          seed_runs)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -74,17 +77,20 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
 
     check_critic_settings(preset, methods)  # before anything is written
     out_dir = result_dir(variant(preset, costs), results_root)
-    os.makedirs(out_dir, exist_ok=True)
     path = lambda e, d, m, s: os.path.join(out_dir, run_name(e, d, m, s) + ".json")  # noqa: E731
+    own = lambda m: dict(physics=physics, costs=costs, **{  # noqa: E731
+        k: v for k, v in overrides.items() if k != "precision" or ALL_METHODS[m].agent == "dt"})
+    check_not_stale(path, [(e, d, m, s) for e in envs for d in datasets for m in methods for s in seeds],
+                    lambda m: dataclasses.replace(preset_config(preset, m), method=m, **own(m)))
+    os.makedirs(out_dir, exist_ok=True)
     todo, skipped = plan_units(envs, datasets, methods, seeds, path, whole_env)
     status = {"done": [], "skipped": skipped, "failed": []}
     for i, (first, dss, env, ms, n) in enumerate(todo):
         names = [run_name(env, d, m, s) for d in dss for m in ms for s in range(first, first + n)]
         label = "+".join(ms) + f" {env}-{'+'.join(dss)} s{first}" + (f"-{first + n - 1}" if n > 1 else "")
         suffix = f"-s{first}" if n == 1 else f"-s{first}-{first + n - 1}"
-        own = {k: v for k, v in overrides.items() if k != "precision" or ALL_METHODS[ms[0]].agent == "dt"}
         cfg = dataclasses.replace(preset_config(preset, ",".join(ms)), env=env, dataset=",".join(dss), seed=first,
-                                  seeds=n, physics=physics, costs=costs, **own,
+                                  seeds=n, **own(ms[0]),
                                   out=os.path.join(runs_root, variant(preset, costs),
                                                    f"{env}-{'+'.join(dss)}-{'+'.join(ms)}{suffix}"))
         log(f"[{i + 1}/{len(todo)}] {label} ...")
@@ -260,11 +266,6 @@ def main(argv=None) -> int:
 
     if a.preset not in PRESETS:
         p.error(f"--preset must be one of {list(PRESETS)}")
-    if a.action in ("all", "run"):
-        try:
-            check_critic_settings(a.preset, a.methods)
-        except ValueError as e:
-            p.error(str(e))
     if a.costs is not None:
         from minsubdt_jax.costs import check_costs
 
@@ -279,8 +280,12 @@ def main(argv=None) -> int:
         resume = "python experiments/table1.py " + " ".join(argv if argv is not None else sys.argv[1:])
         on_unit = (lambda paths, what: commit_results(paths, f"Table 1 ({a.preset}): {what}; resume: {resume}")
                    ) if a.commit else None
-        st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics, costs=a.costs,
-                       whole_env=whole, on_unit=on_unit, **({"precision": a.precision} if a.precision != "f32" else {}))
+        try:  # an unset critic agent or a stale result: one error before anything is written
+            st = run_sweep(a.preset, a.envs, a.datasets, a.methods, a.seeds, a.runs_root, physics=a.physics,
+                           costs=a.costs, whole_env=whole, on_unit=on_unit,
+                           **({"precision": a.precision} if a.precision != "f32" else {}))
+        except ValueError as e:
+            p.error(str(e))
         print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
         failed = st["failed"]
     if a.action in ("all", "aggregate"):

@@ -3,6 +3,8 @@ them, and a program's results split into one compact file per model (``experimen
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 import subprocess
 
@@ -171,3 +173,51 @@ def programs_of(rows: list[dict]) -> dict[str, list[dict]]:
         label = "+".join(dict.fromkeys(r["method"] for r in g))
         out[label if label not in out else f"{label} (evaluated at {list(steps)})"] = g
     return out
+
+
+
+# config fields that say where and how a run was trained, not what was trained: a result file that differs from
+# the preset only in these is still the preset's result (programs of several models, chunking, periodic curves,
+# and who steps the same equations: C MuJoCo or MJX, README "Physics")
+RUN_ONLY_FIELDS = frozenset({"env", "dataset", "method", "seed", "seeds", "out", "preset", "chunk_steps", "physics",
+                             "physics_threads", "logger", "devices", "coordinator_address", "num_processes",
+                             "process_id", "eval_every", "eval_episodes_periodic"})
+# the DT family's network and optimiser fields, which a critic agent does not read (it has its own, agents/*/)
+DT_ONLY_FIELDS = frozenset({"context_len", "embed_dim", "n_layers", "n_heads", "dropout", "learning_rate",
+                            "weight_decay", "warmup_steps", "grad_clip", "precision"})
+
+
+def stale_fields(saved: dict, expected) -> dict:
+    """``{field: (saved, expected)}`` for each config field that changes a model's result whose value in a result
+    file's ``config`` (``saved``) is not the one the sweep would train with now (``expected``: a ``Config``). A
+    field the file predates counts at its default (the code before it behaved so); :data:`RUN_ONLY_FIELDS`, and
+    for a critic agent :data:`DT_ONLY_FIELDS`, are not compared."""
+    skip = RUN_ONLY_FIELDS | (DT_ONLY_FIELDS if ALL_METHODS[expected.method].agent != "dt" else frozenset())
+    out = {}
+    for f in dataclasses.fields(expected):
+        want, default = getattr(expected, f.name), f.default
+        have = saved.get(f.name, default)
+        if f.name not in skip and have != want:
+            out[f.name] = (have, want)
+    return out
+
+
+def check_not_stale(result_path, cells, expected) -> None:
+    """Raise ValueError, before anything is trained or written, if a result file that the sweep would skip as
+    done (``result_path(env, dataset, method, seed)`` for ``cells``) was trained with another config than the
+    sweep's now (``expected(method)``: a ``Config``; :func:`stale_fields`): a changed preset must not keep its
+    old results under its name."""
+    stale = []
+    for e, d, m, s in cells:
+        if os.path.exists(p := result_path(e, d, m, s)):
+            with open(p) as f:
+                saved = json.load(f).get("config")
+            diff = {"config": ("not recorded", "...")} if saved is None else stale_fields(saved, expected(m))
+            stale += [f"{run_name(e, d, m, s)}: " + ", ".join(f"{k} {a!r} (now {b!r})" for k, (a, b) in diff.items())
+                      ] if diff else []
+    if stale:
+        folder = os.path.dirname(result_path(*cells[0]))
+        raise ValueError(f"{len(stale)} result file(s) in {folder} were trained with another config than this "
+                         f"sweep's, and would be kept as its results: {'; '.join(stale[:3])}"
+                         f"{' ...' if len(stale) > 3 else ''}. Move them aside (git mv {folder} <folder>-<what "
+                         f"differs>) or delete them, then run again")

@@ -1,12 +1,15 @@
 """experiments/table1.py: grouping the missing runs into programs, skipping finished runs, splitting a program's
 models into one result file each, and aggregating partial results (a fake trainer)."""
 
+import dataclasses
 import importlib.util
 import json
 import os
 
 import numpy as np
 import pytest
+
+from minsubdt_jax.config import preset_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BASE = {"awr": 10.0, "minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc": 30.0, "cql": 20.0, "iql": 55.0, "minsubdt-iql": 45.0}
@@ -35,8 +38,7 @@ def fake_results(cfg):
              "costs_mean": {"x_velocity": 0.5, "z_velocity": 0.5},
              "spearman_neg_min_subdominance_vs_return": 0.9 if m == "minsubdt" else 0.7,
              "learned_costs": {"heldout_pair_accuracy": 0.8 + 0.01 * s}} for m, s in models]
-    res = {"config": {"env": cfg.env, "dataset": cfg.dataset, "method": cfg.method, "seed": cfg.seed,
-                      "seeds": cfg.seeds}, "seeds": seeds,
+    res = {"config": dataclasses.asdict(cfg), "seeds": seeds,
            "models": [{k: e[k] for k in ("dataset", "method", "seed") if k in e} for e in evals],
            "dataset": dict(data[0], costs_sample=[[0.5, 0.5]]), "train": {"steps": 1}, "eval_per_seed": evals}
     if len(models) > 1:
@@ -59,7 +61,8 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
               log=lambda *_: None, whole_env=True, precision="bf16")
     res_dir = tmp_path / "res" / "table1" / "smoke"
     res_dir.mkdir(parents=True)
-    (res_dir / "walker-medium-dt-s0.json").write_text("{}")  # walker medium has DT's seed 0 already
+    done = dataclasses.replace(preset_config("smoke", "dt"), precision="bf16")  # walker medium has DT's seed 0
+    (res_dir / "walker-medium-dt-s0.json").write_text(json.dumps({"config": dataclasses.asdict(done)}))
     st = table1.run_sweep(methods=("minsubdt", "dt"), seeds=(0, 1), **kw)
     assert calls == [
         ("hopper", "medium,medium-replay", "minsubdt,dt", 0, 2, "hopper-medium+medium-replay-minsubdt+dt-s0-1", "bf16"),
@@ -308,3 +311,34 @@ def test_versus_dt_is_welchs_difference_with_a_two_se_verdict(table1):
     assert "| medium | hopper | -8.0 ± 2.3: behind | +1.3 ± 1.8: level |" in md
     assert "behind DT in 1 of 1 cells with ≥ 2 seeds each: hopper medium (-8.0)" in md
     assert "without a result at `study` (every cell '–'): CQL, BEAR, BRAC-v, AWR, IQL, TD3+BC." in md
+
+
+def test_a_result_trained_with_another_config_is_an_error_not_kept(table1, tmp_path, monkeypatch):
+    """A result file that the sweep would skip as done but that was trained with another config than the preset's
+    now (a changed preset) is one error naming the file and the field, before anything trains or is written; one
+    that differs only in how it was run (its program's seeds, chunking), or a critic agent's in a DT-family field
+    it does not read, is kept and skipped."""
+    from minsubdt_jax import config
+
+    calls = []
+
+    def fake_train(cfg, resume=False, verbose=False):
+        calls.append((cfg.method, cfg.seed, cfg.seeds))
+        return fake_results(cfg)
+
+    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
+              results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+    table1.run_sweep(methods=("dt", "iql"), seeds=(0, 1), **kw)
+    calls.clear()
+    table1.run_sweep(methods=("dt", "iql"), seeds=(0, 1, 2), chunk_steps=5, **kw)  # another chunking: kept
+    assert calls == [("dt", 2, 1), ("iql", 2, 1)]
+    res = tmp_path / "res" / "table1" / "smoke"
+    before = {f: (res / f).read_text() for f in os.listdir(res)}
+    monkeypatch.setitem(config.PRESETS, "smoke", dataclasses.replace(config.PRESETS["smoke"], learning_rate=5e-4))
+    calls.clear()
+    with pytest.raises(ValueError, match=r"3 result file\(s\).*hopper-medium-dt-s0: learning_rate 0.001 \(now "
+                                         r"0.0005\)"):
+        table1.run_sweep(methods=("iql", "dt"), seeds=(0, 1, 2, 3), **kw)
+    assert calls == [] and {f: (res / f).read_text() for f in os.listdir(res)} == before
+    table1.run_sweep(methods=("iql",), seeds=(0, 1, 2, 3), **kw)  # IQL does not read the DT family's rate
+    assert calls == [("iql", 3, 1)]
