@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from minsubdt_jax.config import CRITIC_PRESETS
+from minsubdt_jax.config import CRITIC_PRESETS, PRESETS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 ENVS = ("halfcheetah", "hopper", "walker")
@@ -137,11 +137,13 @@ def markdown(out: dict) -> str:
              f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
              f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
              *([] if out["preset"] != "study" else [
-                 "The `study` preset: the `cpu` model with a cosine decay over 10k steps and an average of the "
-                 "parameters, chosen from score curves on this CPU. **Provisional**: [docs/convergence.md]"
-                 "(../../docs/convergence.md) says which cells' curves have flattened at it (and which have not) "
-                 "and how it differs from the paper's configuration. See *Data* below for the dataset files and "
-                 "cost features these runs used.", "", *_critic_settings(out["preset"], methods)]
+                 f"The `study` preset: the `cpu` model at a peak rate of {PRESETS['study'].learning_rate:g} with a "
+                 f"cosine decay over {PRESETS['study'].steps // 1000}k steps and an average of the parameters, "
+                 "chosen from score curves on this CPU. [docs/convergence.md](../../docs/convergence.md) says "
+                 "which cells' curves have flattened at it (and which have not) and how it differs from the "
+                 "paper's configuration; the DT-family table at its earlier rate, 3e-4, is there too (results in "
+                 "`table1/study-lr3e-4/`). See *Data* below for the dataset files and cost features these runs "
+                 "used.", "", *_critic_settings(out["preset"], methods)]
                if out["preset"] == "study" else [
                  f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
                  "(README, *What the presets are for*); the `study` and `paper` presets are. See *Data* below for "

@@ -143,10 +143,11 @@ PRESETS = {
     # trains and evaluates one dataset in <= 15 min on a 2-core CPU (an evaluation every 500 steps: a score curve)
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
                   chunk_steps=500, eval_episodes=10, eval_every=500, cost_steps=500),
-    # chosen from score curves to be affordable on a 2-core CPU (issue 25; provisional: docs/convergence.md says
-    # which cells have flattened at it): the cpu model, a cosine decay to 0 over 10k steps and an average of the
-    # parameters (EMA 0.999), evaluated on 100 episodes; ~5-8 min per model here
-    "study": Config(preset="study", steps=10_000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
+    # chosen from score curves to be affordable on a 2-core CPU (issue 25; docs/convergence.md says which cells
+    # have flattened at it): the cpu model at a peak rate of 1e-3 (3e-4 left DT rising on two cells), a cosine
+    # decay to 0 over 10k steps and an average of the parameters (EMA 0.999), evaluated on 100 episodes; ~5-8 min
+    # per model here
+    "study": Config(preset="study", steps=10_000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=1e-3,
                     lr_schedule="cosine", ema_decay=0.999, chunk_steps=500, eval_episodes=100, eval_every=0),
     # the DT paper's hyper-parameters (~14 h on a 2-core CPU)
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
