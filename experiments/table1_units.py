@@ -175,7 +175,6 @@ def programs_of(rows: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
-
 # config fields that say where and how a run was trained, not what was trained: a result file that differs from
 # the preset only in these is still the preset's result (programs of several models, chunking, periodic curves,
 # and who steps the same equations: C MuJoCo or MJX, README "Physics")
