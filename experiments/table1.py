@@ -81,7 +81,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     own = lambda m: dict(physics=physics, costs=costs, **{  # noqa: E731
         k: v for k, v in overrides.items() if k != "precision" or ALL_METHODS[m].agent == "dt"})
     check_not_stale(path, [(e, d, m, s) for e in envs for d in datasets for m in methods for s in seeds],
-                    lambda m: dataclasses.replace(preset_config(preset, m), method=m, **own(m)))
+                    lambda m: dataclasses.replace(preset_config(preset, m), **own(m)))
     os.makedirs(out_dir, exist_ok=True)
     todo, skipped = plan_units(envs, datasets, methods, seeds, path, whole_env)
     status = {"done": [], "skipped": skipped, "failed": []}
