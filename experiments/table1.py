@@ -40,7 +40,7 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
-                           markdown, plot_costs, versus_dt)
+                           data_files, markdown, plot_costs, versus_dt)
 from table1_units import (check_critic_settings, check_not_stale, commit_results, compact,  # noqa: E402,F401
                           curves_from_results, model_curve, per_seed_results, plan_units, programs_of, run_name,
                           seed_runs)
@@ -211,16 +211,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
             lc = costs.setdefault(key, {}).setdefault("learned", [])
             lc.append({"seed": row["seed"], "spearman": ds["spearman_neg_min_subdominance_vs_return"],
                        "heldout_pair_accuracy": ds["learned_costs"]["heldout_pair_accuracy"]})
-    demo = {f"{d}/{e}": next((r["r"]["dataset"]["normalized_score_mean"] for r in rows
-                              if r["dataset"] == d and r["env"] == e), None) for d in DATASETS for e in ENVS}
-    files = {}
-    for row in rows:  # which recording of each dataset the runs used (the file name holds the recipe version)
-        ds, ph = row["r"]["dataset"], row["r"].get("physics") or {}
-        files.setdefault(f"{row['dataset']}/{row['env']}", set()).add(
-            (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"]),
-             ph.get("physics", "not recorded"), ph.get("dynamics", "not recorded")))
-    files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d} for f, h, c, p, d in sorted(v)]
-             for k, v in files.items()}
+    files, demo = data_files(rows)
     episodes = sorted({r["r"]["eval"]["episodes"] for r in rows if "eval" in r["r"]})
     out = {"preset": preset, "eval_episodes": "/".join(map(str, episodes)) or "–", "runs": len(rows), "table": table,
            "averages": averages, "versus_dt": versus_dt(table), "dataset_score": demo,

@@ -3,6 +3,8 @@ aggregate that ``experiments/table1.py`` computes. The seed's published numbers 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from minsubdt_jax.config import CRITIC_PRESETS, PRESETS
@@ -127,6 +129,26 @@ def _critic_settings(preset: str, methods) -> list[str]:
             ] if agents else []
 
 
+
+def data_files(rows: list[dict]) -> tuple[dict, dict]:
+    """Which recording(s) of each cell's dataset its runs used, ``{"d/e": [{file, sha256, cost_features, physics,
+    dynamics, dataset_score, methods}]}`` (the file name holds the recipe version), and the dataset's own score per
+    cell: the mean over its distinct recordings (file, hash), each counted once however many runs used it."""
+    files = {}
+    for row in rows:
+        ds, ph = row["r"]["dataset"], row["r"].get("physics") or {}
+        files.setdefault(f"{row['dataset']}/{row['env']}", {}).setdefault(
+            (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"]),
+             ph.get("physics", "not recorded"), ph.get("dynamics", "not recorded"), ds["normalized_score_mean"]),
+            set()).add(row["method"])
+    files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d, "dataset_score": s,
+                  "methods": [m for m in COLUMNS if m in ms]} for (f, h, c, p, d, s), ms in sorted(v.items())]
+             for k, v in files.items()}
+    demo = {k: float(np.mean(list({(x["file"], x["sha256"]): x["dataset_score"] for x in v}.values())))
+            for k, v in files.items()}
+    return files, demo
+
+
 def markdown(out: dict) -> str:
     methods = columns(out["table"])
     cols = [METHOD_NAMES[m] for m in methods]
@@ -154,8 +176,9 @@ def markdown(out: dict) -> str:
         return [f"| {d} | {e} | {fmt(d, e, out['table'].get(f'{d}/{e}', {}))} |" for d in DATASETS for e in ENVS]
 
     def own(d, e):
-        v = out["dataset_score"].get(f"{d}/{e}")
-        return "–" if v is None else f"{v:.1f}"
+        v, n = out["dataset_score"].get(f"{d}/{e}"), len({(x["file"], x["sha256"]) for x in
+                                                          out.get("data_files", {}).get(f"{d}/{e}", [])})
+        return "–" if v is None else f"{v:.1f}" + (f" (mean of {n} recordings)" if n > 1 else "")
 
     lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in methods))
     for label, av in out["averages"].items():
@@ -202,9 +225,14 @@ def markdown(out: dict) -> str:
               "episodes, where the run recorded it) and their engineered cost features. A cell whose file is not "
               "today's `python -m minsubdt_jax.data` recording, or whose features are not today's "
               "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
-              "| dataset | env | file (sha256): cost features; evaluation physics, dynamics |", "|---|---|---|"]
+              "| dataset | env | file (sha256): cost features; evaluation physics, dynamics; dataset's own score; "
+              "used by |", "|---|---|---|"]
     lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}; "
                                              f"{x.get('physics', 'not recorded')}, {x.get('dynamics', 'not recorded')}"
+                                             + (f"; dataset's own {x['dataset_score']:.1f}" if "dataset_score" in x
+                                                else "")
+                                             + (f"; used by {', '.join(METHOD_NAMES[m] for m in x['methods'])}"
+                                                if x.get("methods") else "")
                                              for x in
                                              out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
               for d in DATASETS for e in ENVS]

@@ -173,6 +173,14 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     assert len(files) == 7 and not any(f.endswith(".tmp") for f in files)
     assert np.isclose(json.loads((res_dir / "hopper-medium-dt-s1.json").read_text())["eval"]["normalized_score_mean"],
                       61.0)
+    # a cell whose runs used two recordings: the dataset's own score is their mean, each recording counted once
+    bc0["dataset"].update(path="/c/hopper-medium-b.hdf5", sha256="b" * 64, normalized_score_mean=55.0)
+    (res_dir / "hopper-medium-bc-s0.json").write_text(json.dumps(bc0))
+    out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg2"), plots=False)
+    assert out["dataset_score"]["medium/hopper"] == pytest.approx(50.0)  # (45 + 55) / 2, not 6 x 45 + 55 over 7
+    assert [(f["dataset_score"], f["methods"]) for f in out["data_files"]["medium/hopper"]] == [
+        (45.0, ["minsubdt", "minsubdt-learned", "dt"]), (55.0, ["bc"])]
+    assert "| medium | hopper | 50.0 (mean of 2 recordings) |" in (tmp_path / "agg2" / "table1.md").read_text()
 
 
 def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp_path):
