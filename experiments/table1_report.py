@@ -129,7 +129,6 @@ def _critic_settings(preset: str, methods) -> list[str]:
             ] if agents else []
 
 
-
 def data_files(rows: list[dict]) -> tuple[dict, dict]:
     """Which recording(s) of each cell's dataset its runs used, ``{"d/e": [{file, sha256, cost_features, physics,
     dynamics, dataset_score, methods}]}`` (the file name holds the recipe version), and the dataset's own score per
