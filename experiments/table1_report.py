@@ -129,6 +129,11 @@ def _critic_settings(preset: str, methods) -> list[str]:
             ] if agents else []
 
 
+def _recordings(entries: list[dict]) -> dict:
+    """A cell's distinct recordings, ``{(file, sha256): dataset's own score}``, from its ``data_files`` entries."""
+    return {(x["file"], x["sha256"]): x["dataset_score"] for x in entries}
+
+
 def data_files(rows: list[dict]) -> tuple[dict, dict]:
     """Which recording(s) of each cell's dataset its runs used, ``{"d/e": [{file, sha256, cost_features, physics,
     dynamics, dataset_score, methods}]}`` (the file name holds the recipe version), and the dataset's own score per
@@ -143,8 +148,7 @@ def data_files(rows: list[dict]) -> tuple[dict, dict]:
     files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d, "dataset_score": s,
                   "methods": [m for m in COLUMNS if m in ms]} for (f, h, c, p, d, s), ms in sorted(v.items())]
              for k, v in files.items()}
-    demo = {k: float(np.mean(list({(x["file"], x["sha256"]): x["dataset_score"] for x in v}.values())))
-            for k, v in files.items()}
+    demo = {k: float(np.mean(list(_recordings(v).values()))) for k, v in files.items()}
     return files, demo
 
 
@@ -175,8 +179,7 @@ def markdown(out: dict) -> str:
         return [f"| {d} | {e} | {fmt(d, e, out['table'].get(f'{d}/{e}', {}))} |" for d in DATASETS for e in ENVS]
 
     def own(d, e):
-        v, n = out["dataset_score"].get(f"{d}/{e}"), len({(x["file"], x["sha256"]) for x in
-                                                          out.get("data_files", {}).get(f"{d}/{e}", [])})
+        v, n = out["dataset_score"].get(f"{d}/{e}"), len(_recordings(out.get("data_files", {}).get(f"{d}/{e}", [])))
         return "–" if v is None else f"{v:.1f}" + (f" (mean of {n} recordings)" if n > 1 else "")
 
     lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in methods))
@@ -228,10 +231,8 @@ def markdown(out: dict) -> str:
               "used by |", "|---|---|---|"]
     lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}; "
                                              f"{x.get('physics', 'not recorded')}, {x.get('dynamics', 'not recorded')}"
-                                             + (f"; dataset's own {x['dataset_score']:.1f}" if "dataset_score" in x
-                                                else "")
-                                             + (f"; used by {', '.join(METHOD_NAMES[m] for m in x['methods'])}"
-                                                if x.get("methods") else "")
+                                             + f"; dataset's own {x['dataset_score']:.1f}; used by "
+                                             + ", ".join(METHOD_NAMES[m] for m in x["methods"])
                                              for x in
                                              out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
               for d in DATASETS for e in ENVS]
