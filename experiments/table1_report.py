@@ -230,7 +230,7 @@ def markdown(out: dict) -> str:
               "| dataset | env | file (sha256): cost features; evaluation physics, dynamics; dataset's own score; "
               "used by |", "|---|---|---|"]
     lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}; "
-                                             f"{x.get('physics', 'not recorded')}, {x.get('dynamics', 'not recorded')}"
+                                             f"{x['physics']}, {x['dynamics']}"
                                              + f"; dataset's own {x['dataset_score']:.1f}; used by "
                                              + ", ".join(METHOD_NAMES[m] for m in x["methods"])
                                              for x in
