@@ -142,10 +142,11 @@ def _methods_of(run_dir: str, prefix: str) -> list[str]:
 
 def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()) -> dict:
     """Per landed cell (``landed``: "dataset/env" keys with results): its score and loss curves in one figure,
-    ``out_root/table1_curves/<preset>-<env>-<dataset>.png``, drawn from its training runs on this machine
-    (``runs_root/<preset>/<env>-<dataset>-*``, their ``metrics.jsonl``: :func:`minsubdt_jax.plot.plot_runs`), else
-    from the ``curve`` its result files keep (``rows``, :func:`load_results`), else the figure already in
-    ``out_root`` is kept. A cell still training gets no figure (the report would link one that is not committed).
+    ``out_root/table1_curves/<preset>-<env>-<dataset>.png``, drawn from the ``curve`` its result files keep
+    (``rows``, :func:`load_results`: every seed and method of the cell, whichever machine trained it, so any clone
+    draws the same figure), else from its training runs on this machine (``runs_root/<preset>/<env>-<dataset>-*``,
+    their ``metrics.jsonl``: :func:`minsubdt_jax.plot.plot_runs`), else the figure already in ``out_root`` is kept.
+    A cell still training gets no figure (the report would link one that is not committed).
     ``{"dataset/env": png path relative to out_root}``."""
     from minsubdt_jax.plot import plot_curves, plot_runs
 
@@ -161,12 +162,12 @@ def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()
             kept = [r for r in rows if r["env"] == env and r["dataset"] == ds and r["r"].get("curve")]
             if dirs or kept:
                 os.makedirs(os.path.join(out_root, "table1_curves"), exist_ok=True)
-            if dirs:
-                plot_runs(dirs, png, labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
-            elif kept:
+            if kept:
                 programs = programs_of(kept)
                 plot_curves([curves_from_results(g) for g in programs.values()], png,
                             [f"{env}-{ds} {label} (result files)" for label in programs])
+            elif dirs:
+                plot_runs(dirs, png, labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
             if os.path.exists(png):
                 pngs[f"{ds}/{env}"] = rel
     return pngs

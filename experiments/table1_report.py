@@ -144,12 +144,20 @@ def data_files(rows: list[dict]) -> tuple[dict, dict]:
         files.setdefault(f"{row['dataset']}/{row['env']}", {}).setdefault(
             (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"]),
              ph.get("physics", "not recorded"), ph.get("dynamics", "not recorded"), ds["normalized_score_mean"]),
-            set()).add(row["method"])
+            set()).add((row["method"], row["seed"]))
     files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d, "dataset_score": s,
-                  "methods": [m for m in COLUMNS if m in ms]} for (f, h, c, p, d, s), ms in sorted(v.items())]
+                  "methods": [m for m in COLUMNS if m in {x for x, _ in ms}],
+                  "seeds": {m: sorted(i for x, i in ms if x == m) for m in COLUMNS if m in {x for x, _ in ms}}}
+                 for (f, h, c, p, d, s), ms in sorted(v.items())]
              for k, v in files.items()}
     demo = {k: float(np.mean(list(_recordings(v).values()))) for k, v in files.items()}
     return files, demo
+
+
+def _used_by(method: str, entry: dict, entries: list[dict]) -> str:
+    """A method's name in a recording's "used by", with the seeds that used it where its seeds span recordings."""
+    seeds = entry.get("seeds", {}).get(method) if sum(method in x["methods"] for x in entries) > 1 else None
+    return METHOD_NAMES[method] + (f" (seed {', '.join(map(str, seeds))})" if seeds else "")
 
 
 def markdown(out: dict) -> str:
@@ -229,17 +237,17 @@ def markdown(out: dict) -> str:
               "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
               "| dataset | env | file (sha256): cost features; evaluation physics, dynamics; dataset's own score; "
               "used by |", "|---|---|---|"]
-    lines += [f"| {d} | {e} | " + "; ".join(f"{x['file']} ({x['sha256']}): {x['cost_features']}; "
-                                             f"{x['physics']}, {x['dynamics']}"
-                                             + f"; dataset's own {x['dataset_score']:.1f}; used by "
-                                             + ", ".join(METHOD_NAMES[m] for m in x["methods"])
-                                             for x in
-                                             out.get("data_files", {}).get(f"{d}/{e}", [])) + " |"
-              for d in DATASETS for e in ENVS]
+    for d, e in ((d, e) for d in DATASETS for e in ENVS):
+        xs = out.get("data_files", {}).get(f"{d}/{e}", [])
+        lines.append(f"| {d} | {e} | " + "; ".join(
+            f"{x['file']} ({x['sha256']}): {x['cost_features']}; {x['physics']}, {x['dynamics']}; dataset's own "
+            f"{x['dataset_score']:.1f}; used by " + ", ".join(_used_by(m, x, xs) for m in x["methods"]) for x in xs)
+            + " |")
     lines += ["", "## Curves", "",
               "Score and loss against the gradient step of each cell's training runs (`python -m minsubdt_jax.plot`, "
-              "drawn by `aggregate` from the run directories on the machine that trained them, or from the "
-              "`curve` each result file keeps), and the convergence curves of [curves.md](curves.md).", ""]
+              "drawn by `aggregate` from the `curve` each result file keeps, all methods and seeds of the cell, or "
+              "else from the run directories on the machine that trained them), and the convergence curves of "
+              "[curves.md](curves.md).", ""]
     lines += [f"- {d} {e}: ![curves]({png})" for key, png in sorted(out.get("curves", {}).items())
               for d, e in [key.split("/")]] or ["- none on the machine that aggregated"]
     lost = [k.replace("/", " ") for k in sorted(out.get("table", {})) if k not in out.get("curves", {})]

@@ -176,11 +176,18 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     # a cell whose runs used two recordings: the dataset's own score is their mean, each recording counted once
     bc0["dataset"].update(path="/c/hopper-medium-b.hdf5", sha256="b" * 64, normalized_score_mean=55.0)
     (res_dir / "hopper-medium-bc-s0.json").write_text(json.dumps(bc0))
+    dt1 = json.loads((res_dir / "hopper-medium-dt-s1.json").read_text())  # DT's seeds span the two recordings
+    dt1["dataset"].update(path="/c/hopper-medium-b.hdf5", sha256="b" * 64, normalized_score_mean=55.0)
+    (res_dir / "hopper-medium-dt-s1.json").write_text(json.dumps(dt1))
     out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg2"), plots=False)
     assert out["dataset_score"]["medium/hopper"] == pytest.approx(50.0)  # (45 + 55) / 2, not 6 x 45 + 55 over 7
     assert [(f["dataset_score"], f["methods"]) for f in out["data_files"]["medium/hopper"]] == [
-        (45.0, ["minsubdt", "minsubdt-learned", "dt"]), (55.0, ["bc"])]
-    assert "| medium | hopper | 50.0 (mean of 2 recordings) |" in (tmp_path / "agg2" / "table1.md").read_text()
+        (45.0, ["minsubdt", "minsubdt-learned", "dt"]), (55.0, ["dt", "bc"])]
+    assert [f["seeds"]["dt"] for f in out["data_files"]["medium/hopper"]] == [[0], [1]]
+    md = (tmp_path / "agg2" / "table1.md").read_text()
+    assert "| medium | hopper | 50.0 (mean of 2 recordings) |" in md
+    assert "used by MinSubDT (engg. costs), MinSubDT (learned costs), DT (seed 0); " in md
+    assert "used by DT (seed 1), BC (DT architecture) |" in md
 
 
 def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp_path):
@@ -239,12 +246,17 @@ def test_study_trains_each_agent_family_at_its_own_setting_and_refuses_an_unset_
     assert not (tmp_path / "no").exists()
 
 
-def test_report_draws_each_cells_training_curves(table1, tmp_path):
-    """``aggregate`` plots the run directories of each landed cell (and only that cell's: walker-medium-replay runs
-    are not walker medium's) with minsubdt_jax.plot; a cell still training gets no figure, a landed cell trained on
-    another machine keeps its committed one, and the report links the figures."""
+def test_report_draws_each_cells_training_curves(table1, tmp_path, monkeypatch):
+    """``aggregate`` plots each landed cell from its result files' curves, else from its run directories (and only
+    that cell's: walker-medium-replay runs are not walker medium's) with minsubdt_jax.plot; a cell still training
+    gets no figure, a landed cell trained on another machine keeps its committed one, and the report links them."""
+    import minsubdt_jax.plot as plot
+
+    drawn, plot_runs = [], plot.plot_runs
+    monkeypatch.setattr(plot, "plot_runs", lambda dirs, *a, **k: (drawn.extend(dirs), plot_runs(dirs, *a, **k)))
     runs = tmp_path / "runs" / "smoke"
-    for name in ("walker-medium-minsubdt+dt-s0-1", "walker-medium-replay-dt-s0", "walker-medium-bc-s0"):
+    for name in ("walker-medium-minsubdt+dt-s0-1", "walker-medium-replay-dt-s0", "walker-medium-bc-s0",
+                 "walker-medium-expert-dt-s1"):  # the last: one seed of a cell whose result files hold all
         (runs / name).mkdir(parents=True)
         recs = [{"step": 10, "loss": 1.0, "loss_per_seed": [1.0]},
                 {"step": 10, "final": True, "eval_method": ["dt"], "eval_seed": [0], "eval_normalized_score": [40.0],
@@ -290,6 +302,7 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path):
     assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
                     "medium/hopper": "table1_curves/smoke-hopper-medium.png",
                     "medium-expert/walker": "table1_curves/smoke-walker-medium-expert.png"}  # from its result files
+    assert sorted(os.path.basename(d) for d in drawn) == ["walker-medium-bc-s0", "walker-medium-minsubdt+dt-s0-1"]
     assert (agg / pngs["medium/walker"]).stat().st_size > 1000
     assert (agg / pngs["medium-expert/walker"]).stat().st_size > 1000
     assert not (agg / "table1_curves" / "smoke-walker-medium-replay.png").exists()
