@@ -157,7 +157,7 @@ def data_files(rows: list[dict]) -> tuple[dict, dict]:
 def _used_by(method: str, entry: dict, entries: list[dict]) -> str:
     """A method's name in a recording's "used by", with the seeds that used it where its seeds span recordings."""
     seeds = entry.get("seeds", {}).get(method) if sum(method in x["methods"] for x in entries) > 1 else None
-    return METHOD_NAMES[method] + (f" (seed {', '.join(map(str, seeds))})" if seeds else "")
+    return METHOD_NAMES[method] + (f" [seed{'s' * (len(seeds) > 1)} {', '.join(map(str, seeds))}]" if seeds else "")
 
 
 def markdown(out: dict) -> str:

@@ -186,8 +186,8 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     assert [f["seeds"]["dt"] for f in out["data_files"]["medium/hopper"]] == [[0], [1]]
     md = (tmp_path / "agg2" / "table1.md").read_text()
     assert "| medium | hopper | 50.0 (mean of 2 recordings) |" in md
-    assert "used by MinSubDT (engg. costs), MinSubDT (learned costs), DT (seed 0); " in md
-    assert "used by DT (seed 1), BC (DT architecture) |" in md
+    assert "used by MinSubDT (engg. costs), MinSubDT (learned costs), DT [seed 0]; " in md
+    assert "used by DT [seed 1], BC (DT architecture) |" in md
 
 
 def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp_path):
