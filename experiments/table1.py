@@ -157,9 +157,10 @@ def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()
                 continue
             rel = os.path.join("table1_curves", f"{preset}-{env}-{ds}.png")
             png = os.path.join(out_root, rel)
-            dirs = sorted(d for d in glob.glob(os.path.join(runs_root, preset, f"{env}-{ds}-*"))
-                          if os.path.exists(os.path.join(d, "metrics.jsonl")) and _methods_of(d, f"{env}-{ds}-"))
             kept = [r for r in rows if r["env"] == env and r["dataset"] == ds and r["r"].get("curve")]
+            dirs = [] if kept else sorted(  # this machine's runs, only where no result file keeps a curve
+                d for d in glob.glob(os.path.join(runs_root, preset, f"{env}-{ds}-*"))
+                if os.path.exists(os.path.join(d, "metrics.jsonl")) and _methods_of(d, f"{env}-{ds}-"))
             if dirs or kept:
                 os.makedirs(os.path.join(out_root, "table1_curves"), exist_ok=True)
             if kept:

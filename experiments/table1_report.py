@@ -144,10 +144,9 @@ def data_files(rows: list[dict]) -> tuple[dict, dict]:
         files.setdefault(f"{row['dataset']}/{row['env']}", {}).setdefault(
             (os.path.basename(ds.get("path", "?")), ds.get("sha256", "not recorded")[:12], "+".join(ds["costs_mean"]),
              ph.get("physics", "not recorded"), ph.get("dynamics", "not recorded"), ds["normalized_score_mean"]),
-            set()).add((row["method"], row["seed"]))
+            {}).setdefault(row["method"], set()).add(row["seed"])
     files = {k: [{"file": f, "sha256": h, "cost_features": c, "physics": p, "dynamics": d, "dataset_score": s,
-                  "methods": [m for m in COLUMNS if m in {x for x, _ in ms}],
-                  "seeds": {m: sorted(i for x, i in ms if x == m) for m in COLUMNS if m in {x for x, _ in ms}}}
+                  "methods": [m for m in COLUMNS if m in ms], "seeds": {m: sorted(ms[m]) for m in COLUMNS if m in ms}}
                  for (f, h, c, p, d, s), ms in sorted(v.items())]
              for k, v in files.items()}
     demo = {k: float(np.mean(list(_recordings(v).values()))) for k, v in files.items()}
@@ -156,7 +155,7 @@ def data_files(rows: list[dict]) -> tuple[dict, dict]:
 
 def _used_by(method: str, entry: dict, entries: list[dict]) -> str:
     """A method's name in a recording's "used by", with the seeds that used it where its seeds span recordings."""
-    seeds = entry.get("seeds", {}).get(method) if sum(method in x["methods"] for x in entries) > 1 else None
+    seeds = entry["seeds"][method] if sum(method in x["methods"] for x in entries) > 1 else None
     return METHOD_NAMES[method] + (f" [seed{'s' * (len(seeds) > 1)} {', '.join(map(str, seeds))}]" if seeds else "")
 
 
