@@ -78,6 +78,7 @@ def snapshot(a) -> dict:
     ``config.json``, ``dataset.json`` and ``metrics.jsonl``; marked ``partial`` with the command that resumes it."""
     from minsubdt_jax.data import resolve_dataset
     from minsubdt_jax.references import normalized_score
+    from minsubdt_jax.agents.dt.networks import DT_REVISION
     from minsubdt_jax.train import platform
 
     out = os.path.join(a.runs_root, name_of(a))
@@ -92,7 +93,7 @@ def snapshot(a) -> dict:
         raise SystemExit(f"{data.path} is not the run's data (sha256 {ds['sha256'][:12]})")
     ds["normalized_score_mean"] = float(normalized_score(cfg["env"], data.data.returns, ds["dynamics"]).mean())
     res = {"config": cfg, "dataset": ds, "physics": {"physics": cfg["physics"], "dynamics": ds["dynamics"]},
-           "platform": platform(),  # the run directory is this machine's
+           "platform": platform(), "dt_revision": DT_REVISION,  # the run directory is this machine's, and this code's
            "models": [{"method": m, "seed": s} for m, s in zip(first["eval_method"], first["eval_seed"])]}
     curve = collect(out, res)
     curve.update(partial=True, command=" ".join(["python experiments/curves.py run", *sys.argv[2:]]))
@@ -131,6 +132,7 @@ def collect(run_dir: str, res: dict) -> dict:
             "config": cfg, "dataset": {k: res["dataset"][k] for k in ("path", "sha256", "episodes", "transitions",
                                                                         "normalized_score_mean")},
             "physics": res.get("physics"), "references": res.get("references"), "platform": res.get("platform"),
+            "dt_revision": res.get("dt_revision", 1),
             "train_seconds": round(sum(r.get("chunk_seconds", 0.0) for r in records), 1),
             "steps": [r["step"] for r in evals], "episodes": [r["eval_episodes"] for r in evals], "models": models}
 

@@ -102,7 +102,8 @@ def pool_key(c: dict, default: dict) -> str:
 
     methods = c["config"].get("method", default["method"]).split(",")
     keys = POOL_KEYS + (CRITIC_POOL_KEYS if any(METHODS[m].agent != "dt" for m in methods) else ())
-    return json.dumps([c["dataset"]["sha256"]] + [c["config"].get(k, default[k]) for k in keys])
+    revision = [c.get("dt_revision", 1)] if any(METHODS[m].agent == "dt" for m in methods) else []  # the DT's code
+    return json.dumps([c["dataset"]["sha256"]] + revision + [c["config"].get(k, default[k]) for k in keys])
 
 
 def pooled(curves: dict) -> list[dict]:

@@ -10,6 +10,7 @@ import subprocess
 
 import numpy as np
 
+from minsubdt_jax.agents.dt.networks import DT_REVISION
 from minsubdt_jax.config import CRITIC_PRESETS, SINGLE_DATASET_AGENTS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
@@ -70,7 +71,7 @@ def compact(results: dict) -> dict:
             return {k: rnd(v) for k, v in x.items()}
         return x
 
-    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics", "curve")
+    keep = ("config", "method", "dataset", "train", "eval", "references", "platform", "physics", "curve", "dt_revision")
     return rnd({k: results[k] for k in keep if k in results})
 
 
@@ -210,8 +211,11 @@ def check_not_stale(result_path, cells, expected) -> None:
     for e, d, m, s in cells:
         if os.path.exists(p := result_path(e, d, m, s)):
             with open(p) as f:
-                saved = json.load(f).get("config")
-            diff = {"config": ("not recorded", "...")} if saved is None else stale_fields(saved, expected(m))
+                saved = json.load(f)
+            diff = {"config": ("not recorded", "...")} if "config" not in saved else stale_fields(saved["config"],
+                                                                                                 expected(m))
+            if ALL_METHODS[m].agent == "dt" and saved.get("dt_revision", 1) != DT_REVISION:  # another model's code
+                diff["dt_revision"] = (saved.get("dt_revision", 1), DT_REVISION)
             stale += [f"{run_name(e, d, m, s)}: " + ", ".join(f"{k} {a!r} (now {b!r})" for k, (a, b) in diff.items())
                       ] if diff else []
     if stale:

@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 
+from minsubdt_jax.agents.dt.networks import DT_REVISION
 from minsubdt_jax.config import preset_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -40,7 +41,8 @@ def fake_results(cfg):
              "learned_costs": {"heldout_pair_accuracy": 0.8 + 0.01 * s}} for m, s in models]
     res = {"config": dataclasses.asdict(cfg), "seeds": seeds,
            "models": [{k: e[k] for k in ("dataset", "method", "seed") if k in e} for e in evals],
-           "dataset": dict(data[0], costs_sample=[[0.5, 0.5]]), "train": {"steps": 1}, "eval_per_seed": evals}
+           "dataset": dict(data[0], costs_sample=[[0.5, 0.5]]), "train": {"steps": 1}, "eval_per_seed": evals,
+           "dt_revision": DT_REVISION}
     if len(models) > 1:
         res["dataset_per_model"] = data
     return res
@@ -62,7 +64,8 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     res_dir = tmp_path / "res" / "table1" / "smoke"
     res_dir.mkdir(parents=True)
     done = dataclasses.replace(preset_config("smoke", "dt"), precision="bf16")  # walker medium has DT's seed 0
-    (res_dir / "walker-medium-dt-s0.json").write_text(json.dumps({"config": dataclasses.asdict(done)}))
+    (res_dir / "walker-medium-dt-s0.json").write_text(json.dumps({"config": dataclasses.asdict(done),
+                                                                      "dt_revision": DT_REVISION}))
     st = table1.run_sweep(methods=("minsubdt", "dt"), seeds=(0, 1), **kw)
     assert calls == [
         ("hopper", "medium,medium-replay", "minsubdt,dt", 0, 2, "hopper-medium+medium-replay-minsubdt+dt-s0-1", "bf16"),
@@ -363,3 +366,29 @@ def test_a_result_trained_with_another_config_is_an_error_not_kept(table1, tmp_p
     assert calls == [] and {f: (res / f).read_text() for f in os.listdir(res)} == before
     table1.run_sweep(methods=("iql",), seeds=(0, 1, 2, 3), **kw)  # IQL does not read the DT family's rate
     assert calls == [("iql", 3, 1)]
+
+
+def test_a_dt_result_of_an_earlier_model_revision_is_an_error_not_kept(table1, tmp_path):
+    """Issue 54: a DT-family result file from before the return-embedding fix (no ``dt_revision``: revision 1) would
+    be kept as the sweep's result like a changed preset's: one error naming it, nothing trained; a critic agent's
+    file of the same age is kept (its networks did not change)."""
+    calls = []
+
+    def fake_train(cfg, resume=False, verbose=False):
+        calls.append((cfg.method, cfg.seed, cfg.seeds))
+        return fake_results(cfg)
+
+    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
+              results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+    table1.run_sweep(methods=("dt", "iql"), seeds=(0,), **kw)
+    res = tmp_path / "res" / "table1" / "smoke"
+    for f in res.glob("*.json"):
+        r = json.loads(f.read_text())
+        if r.pop("dt_revision", None) is not None:
+            f.write_text(json.dumps(r))
+    calls.clear()
+    with pytest.raises(ValueError, match=r"1 result file\(s\).*hopper-medium-dt-s0: dt_revision 1 \(now 2\)"):
+        table1.run_sweep(methods=("dt", "iql"), seeds=(0, 1), **kw)
+    assert calls == []
+    table1.run_sweep(methods=("iql",), seeds=(0, 1), **kw)
+    assert calls == [("iql", 1, 1)]

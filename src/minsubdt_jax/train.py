@@ -37,6 +37,7 @@ import orbax.checkpoint as ocp
 
 from .agents import FIXED_STEPS, batch_size_of, make_agent
 from .agents.base import eval_params, init_seed_states, make_train_chunk, optimizer_for
+from .agents.dt.networks import DT_REVISION
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
 from .costs import cost_metrics
@@ -207,7 +208,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     results = {"config": dataclasses.asdict(cfg), "dataset": own[0],
                "references": references_record(cfg.env, dynamics),
                "physics": {**physics_record(physics, dynamics, cfg.physics_threads), "dynamics_from": dynamics_how},
-               "platform": platform(), "seeds": seeds,
+               "platform": platform(), "seeds": seeds, "dt_revision": DT_REVISION,
                "models": [{**({"dataset": mo[0]} if len(mo) == 3 else {}), "method": mo[-2].name, "seed": mo[-1]}
                           for mo in models],
                "train": {"steps": step, "steps_this_run": step - start, "seconds_this_run": train_seconds}}

@@ -4,6 +4,14 @@ Tokens ``(R_1, s_1, a_1, R_2, s_2, a_2, ...)``: each modality has its own linear
 timestep embedding is added to all three tokens of a step (no positional embedding), then a LayerNorm, a
 causal GPT-2 style pre-LN transformer (ReLU MLP, dropout), and a tanh action head read from each state token.
 
+Initialisation (where flax's defaults and the references differ): the return embedding follows the original DT
+(kzl/decision-transformer) and d3rlpy, torch's ``nn.Linear(1, d)``, kernel and bias from U(-1, 1). flax's zero bias
+made ``LN(w R + e_t)`` one direction for every R > 0 (LayerNorm is scale-invariant), and the model ignored its
+targets (issue 54). The other embeddings keep flax's: lecun-normal kernels and zero biases for the state and action
+embeddings (several inputs, so no such collapse), and std 1/sqrt(d) for the timestep embedding, between d3rlpy's 0.02
+and the original DT's 1 (with the return fix, the cosine of the tokens of R = 1.2 and 3.3 at one step is 0.92 at
+0.02 and at 1/sqrt(d), 0.89 at 1: the return stays readable at any of them). LayerNorm epsilon: flax's 1e-6.
+
 Dropout masks come from :func:`hash_dropout`, a counter-based hash keyed by one threefry draw per call: the
 same inverted dropout as ``flax.linen.Dropout``, without drawing threefry bits for every activation, which
 is expensive on a CPU (``benchmarks/README.md``).
@@ -16,6 +24,12 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+
+# The model's revision, recorded in every results.json (``dt_revision``), so results of two revisions are never pooled
+# or kept as one sweep's: 1 (until 2026-12-06) drew the return embedding's bias as 0 (flax's default), which left the
+# model unable to read its return tokens (issue 54); 2 draws it as torch's nn.Linear(1, d) does.
+DT_REVISION = 2
 
 
 def _fmix32(x):
@@ -62,6 +76,17 @@ def _attention(query, key, value, bias=None, mask=None, dropout_rng=None, dropou
     if not deterministic and dropout_rate > 0.0:
         w = hash_dropout(dropout_rng, dropout_rate, w)
     return jnp.einsum("...hqk,...khd->...qhd", w, value, precision=precision)
+
+
+def torch_linear_init(fan_in: int):
+    """PyTorch's default ``nn.Linear(fan_in, d)`` initialiser, for a kernel and for a bias alike: U(-1/sqrt(fan_in),
+    1/sqrt(fan_in)) (kaiming-uniform with a = sqrt(5) gives the kernel the same bound)."""
+    bound = 1.0 / float(fan_in) ** 0.5
+
+    def init(key, shape, dtype=jnp.float32):
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return init
 
 
 class Block(nn.Module):
@@ -119,7 +144,10 @@ class DecisionTransformer(nn.Module):
         d = self.embed_dim
         dt, f32 = self.dtype, (lambda y: y) if self.dtype is None else (lambda y: y.astype(jnp.float32))  # noqa
         t_emb = nn.Embed(self.max_timestep, d, name="embed_timestep")(jnp.clip(timesteps, 0, self.max_timestep - 1))
-        r = f32(nn.Dense(d, dtype=dt, name="embed_return")(returns_to_go[..., None])) + t_emb
+        # torch's nn.Linear(1, d) init (the original DT's and d3rlpy's), not flax's zero bias: LayerNorm is
+        # scale-invariant, so a zero-bias LN(w R + e_t) is nearly one direction for every R > 0 (issue 54)
+        u = torch_linear_init(1)
+        r = f32(nn.Dense(d, dtype=dt, kernel_init=u, bias_init=u, name="embed_return")(returns_to_go[..., None])) + t_emb
         s = f32(nn.Dense(d, dtype=dt, name="embed_state")(states)) + t_emb
         a = f32(nn.Dense(d, dtype=dt, name="embed_action")(actions)) + t_emb
         x = jnp.stack([r, s, a], axis=2).reshape(B, 3 * K, d)
