@@ -41,6 +41,7 @@ from minsubdt_jax.methods import METHODS as ALL_METHODS
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
                            data_files, markdown, plot_costs, versus_dt)
+import table1_compare  # noqa: E402
 from table1_units import (check_critic_settings, check_not_stale, commit_results, compact,  # noqa: E402,F401
                           curves_from_results, model_curve, per_seed_results, plan_units, programs_of, run_name,
                           seed_runs)
@@ -174,9 +175,8 @@ def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()
     return pngs
 
 
-def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, runs_root="runs/table1") -> dict:
-    """Writes table1.md / table1.json (and the cost plots, and the curves of the runs on this machine) from the
-    results present; returns the table."""
+def summarise(preset: str, results_root=RESULTS) -> tuple[dict, list]:
+    """The table of the results present at ``preset`` (no file written), and the result rows it came from."""
     rows = load_results(preset, results_root)
     cells = {}
     for row in rows:
@@ -220,12 +220,22 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
            "cost_rank_agreement": costs, "data_files": files,
            "published_seed_table1_gym_d4rl": {f"{d}/{e}": dict(v, **PUBLISHED_BASELINES[d, e])
                                               for (d, e), v in PUBLISHED.items()}}
+    return out, rows
+
+
+def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, runs_root="runs/table1") -> dict:
+    """Writes table1.md / table1.json (and the cost plots, and the curves of the runs on this machine) from the
+    results present, beside the DT-family table before the DT fix where it was kept; returns the table."""
+    out, rows = summarise(preset, results_root)
+    before = os.path.join(results_root, "table1", table1_compare.before_fix(preset))
+    out["before_dt_fix"] = table1_compare.summary(summarise(table1_compare.before_fix(preset), results_root)[0]) \
+        if os.path.isdir(before) else None
     os.makedirs(out_root, exist_ok=True)
-    out["curves"] = plot_cell_curves(preset, runs_root, out_root, set(table), rows) if plots else {}
+    out["curves"] = plot_cell_curves(preset, runs_root, out_root, set(out["table"]), rows) if plots else {}
     with open(os.path.join(out_root, "table1.json"), "w") as f:
         json.dump(out, f, indent=2)
     with open(os.path.join(out_root, "table1.md"), "w") as f:
-        f.write(markdown(out))
+        f.write(markdown(out) + table1_compare.markdown(out))
     if plots and rows:
         for env in ENVS:
             plot_costs(rows, env, os.path.join(out_root, f"table1_costs_{env}.png"))

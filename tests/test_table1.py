@@ -392,3 +392,26 @@ def test_a_dt_result_of_an_earlier_model_revision_is_an_error_not_kept(table1, t
     assert calls == []
     table1.run_sweep(methods=("iql",), seeds=(0, 1), **kw)
     assert calls == [("iql", 1, 1)]
+
+
+def test_report_puts_the_table_before_the_dt_fix_beside_todays(table1, tmp_path):
+    """Issue 54: where ``table1/<preset>-dt-rev1/`` keeps the DT-family results of the model before the fix, the
+    report shows each cell's earlier mean beside today's with the change, the averages, and both verdicts."""
+    import shutil
+
+    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
+              results_root=str(tmp_path / "res"), train_fn=lambda cfg, **_: fake_results(cfg), log=lambda *_: None)
+    table1.run_sweep(methods=("minsubdt", "dt"), seeds=(0, 1), **kw)
+    res = tmp_path / "res" / "table1"
+    shutil.copytree(res / "smoke", res / "smoke-dt-rev1")
+    for f in (res / "smoke-dt-rev1").glob("*-dt-s*.json"):  # the earlier DT 7 points lower
+        r = json.loads(f.read_text())
+        r["eval"]["normalized_score_mean"] -= 7.0
+        f.write_text(json.dumps(r))
+    out = table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=False)
+    md = (tmp_path / "agg" / "table1.md").read_text()
+    assert out["before_dt_fix"]["table"]["medium/hopper"]["dt"] == BASE["dt"] + 0.5 - 7.0
+    assert "## Before the DT fix" in md
+    assert f"| medium | hopper | {BASE['minsubdt'] + 0.5:.1f} → {BASE['minsubdt'] + 0.5:.1f} (+0.0) | – | " \
+           f"{BASE['dt'] - 6.5:.1f} → {BASE['dt'] + 0.5:.1f} (+7.0) | – |" in md
+    assert "| medium | hopper | behind → behind | – → – |" in md  # MinSubDT below DT in both tables

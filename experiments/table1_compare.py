@@ -1,0 +1,64 @@
+"""The DT-family table beside the one its model gave before the DT fix (issue 54).
+
+Until 2026-12-06 the DT's return embedding had a zero bias (``dt_revision`` 1), which left the model unable to read
+its return tokens; its DT-family results at a preset were moved to ``table1/<preset>-dt-rev1/`` as the record of
+the defect. ``aggregate`` puts that table's per-cell means and averages beside today's, with each column's change
+and the MinSubDT − DT verdicts of both.
+"""
+
+from __future__ import annotations
+
+from table1_report import DATASETS, ENVS, METHOD_NAMES, METHODS, MINSUBDT_COLUMNS
+
+
+def before_fix(preset: str) -> str:
+    """The results folder of ``preset``'s DT-family runs before the fix."""
+    return f"{preset}-dt-rev1"
+
+
+def summary(out: dict) -> dict:
+    """What the comparison keeps of the earlier table: per cell and DT-family column its mean, its averages, and
+    the MinSubDT − DT verdicts."""
+    return {"table": {k: {m: v[m]["mean"] for m in METHODS if m in v} for k, v in out["table"].items()},
+            "averages": {k: {m: v[m]["mean"] for m in METHODS} for k, v in out["averages"].items()},
+            "versus_dt": {k: {m: v[m]["verdict"] for m in MINSUBDT_COLUMNS if m in v}
+                          for k, v in out["versus_dt"].items()}}
+
+
+def markdown(out: dict) -> str:
+    """The report's section *Before the DT fix*, or nothing where no earlier table was kept."""
+    old = out.get("before_dt_fix")
+    if not old:
+        return ""
+
+    def num(x):
+        return "–" if x is None else f"{x:.1f}"
+
+    def change(new, was):
+        return num(new) + (f" ({new - was:+.1f})" if new is not None and was is not None else "")
+
+    cols = [METHOD_NAMES[m] for m in METHODS]
+    lines = ["", "## Before the DT fix", "",
+             f"The same columns from the model before the DT fix (`table1/{before_fix(out['preset'])}/`: its return "
+             "embedding had a zero bias, so it barely read its return tokens; issue 54): earlier mean → today's "
+             "(change). Cells not yet rerun show the earlier mean alone.", "",
+             "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
+    for d in DATASETS:
+        for e in ENVS:
+            was, now = old["table"].get(f"{d}/{e}", {}), out["table"].get(f"{d}/{e}", {})
+            lines.append(f"| {d} | {e} | " + " | ".join(
+                f"{num(was.get(m))} → {change(now[m]['mean'], was.get(m))}" if m in now else num(was.get(m))
+                for m in METHODS) + " |")
+    for label, av in old["averages"].items():
+        new = out["averages"].get(label, {})
+        lines.append(f"| **average ({label})** | | " + " | ".join(
+            f"{num(av.get(m))} → {change(new.get(m, {}).get('mean'), av.get(m))}" for m in METHODS) + " |")
+    lines += ["", "MinSubDT − DT verdicts, earlier → today (Welch, 2 SE; *Where MinSubDT is behind DT*):", "",
+              "| dataset | env | " + " | ".join(f"{METHOD_NAMES[m]} − DT" for m in MINSUBDT_COLUMNS) + " |",
+              "|---|---|" + "---|" * len(MINSUBDT_COLUMNS)]
+    for d in DATASETS:
+        for e in ENVS:
+            was, now = old["versus_dt"].get(f"{d}/{e}", {}), out["versus_dt"].get(f"{d}/{e}", {})
+            lines.append(f"| {d} | {e} | " + " | ".join(
+                f"{was.get(m, '–')} → {now[m]['verdict'] if m in now else '–'}" for m in MINSUBDT_COLUMNS) + " |")
+    return "\n".join(lines) + "\n"
