@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 from dataclasses import dataclass
 
 from .costs import check_costs
@@ -176,6 +177,9 @@ CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS),
 
 def validate(cfg: Config) -> Config:
     """Raise ValueError with one clear message on an unusable config; return it unchanged otherwise."""
+    for f in dataclasses.fields(cfg):  # NaN or inf in any number (--target-return nan ran and wrote NaN scores)
+        if isinstance(getattr(cfg, f.name), float) and not math.isfinite(getattr(cfg, f.name)):
+            raise ValueError(f"--{f.name.replace('_', '-')} must be a finite number, got {getattr(cfg, f.name)}")
     for name, allowed in CHOICES.items():
         if getattr(cfg, name) not in allowed and not (name == "dynamics" and cfg.dynamics is None):
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")

@@ -91,6 +91,9 @@ def main(argv=None) -> int:
         labels = a.labels.split(",") if a.labels else None
         if labels is not None and len(labels) != len(a.runs):
             raise ValueError(f"--labels has {len(labels)} labels for {len(a.runs)} runs")
+        folder = os.path.dirname(os.path.abspath(a.out))
+        if not os.path.isdir(folder):
+            raise ValueError(f"--out {a.out}: the folder {folder} does not exist")
         plot_runs(a.runs, a.out, labels)
         print(f"wrote {a.out}")
 

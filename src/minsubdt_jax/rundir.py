@@ -4,10 +4,15 @@ bad input."""
 
 from __future__ import annotations
 
+import fcntl
 import json
+import math
 import os
+import signal
+import socket
 import sys
 import tempfile
+import threading
 from typing import Callable
 
 import numpy as np
@@ -78,11 +83,59 @@ def check_writable_dir(out: str) -> None:
         raise ValueError(f"--out {out}: cannot write in {parent} ({e.strerror or e})") from None
 
 
+LOCK_FILE = ".lock"  # in a run directory: held (fcntl) by the one process writing it
+
+
+class RunLock:
+    """One writer per run directory: an exclusive ``fcntl.flock`` on ``<out>/.lock``, held from the first write of
+    a run to its end (the kernel drops it when the process dies, so a killed run leaves no stale lock)."""
+
+    def __init__(self):
+        self.fd = None
+
+    def acquire(self, out: str) -> None:
+        """Take the lock, or raise ValueError naming the process that holds it (nothing written)."""
+        os.makedirs(out, exist_ok=True)
+        fd = os.open(os.path.join(out, LOCK_FILE), os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 256).decode(errors="replace").strip() or "another process"
+            os.close(fd)
+            raise ValueError(f"--out {out} is in use by {holder}: one run writes a run directory at a time; wait "
+                             f"for it to end, or give another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"process {os.getpid()} on {socket.gethostname()}".encode())
+        self.fd = fd
+
+    def release(self) -> None:
+        if self.fd is not None:
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
+
+
+def json_text(obj, **kw) -> str:
+    """``json.dumps`` whose output is always valid JSON: a non-finite float (NaN, inf) becomes ``null``."""
+    def clean(x):
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean(obj), allow_nan=False, **kw)
+
+
 def write_atomic(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: a reader or a kill never sees half."""
+    """Write ``text`` to ``path`` through a temporary file and a rename: a reader or a kill never sees half. The
+    file gets the mode the umask gives a new file (``mkstemp``'s own is 0600)."""
     fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=os.path.basename(path) + ".",
                                suffix=".tmp")
     try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, "w") as f:
             f.write(text)
         os.replace(tmp, path)
@@ -90,6 +143,12 @@ def write_atomic(path: str, text: str) -> None:
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
+
+
+def current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def read_metrics(path: str) -> list[dict]:
@@ -134,7 +193,40 @@ def exit_code(run: Callable[[], object]) -> int:
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except Interrupted as e:
+        print(f"interrupted: {e}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print("interrupted (Ctrl-C)", file=sys.stderr)
+        return 130
     return 0
+
+
+class Interrupted(Exception):
+    """Ctrl-C during a run, after the checkpoint it stopped at: the message says how to resume."""
+
+
+class InterruptFlag:
+    """From its creation until :meth:`restore`, the first Ctrl-C (SIGINT) sets :attr:`raised` instead of raising,
+    so a training loop can stop after its current chunk's checkpoint; a second Ctrl-C raises at once. Outside the
+    main thread (where no handler can be set) it never sets."""
+
+    def __init__(self):
+        self.raised = False
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handle)
+
+    def _handle(self, signum, frame):
+        self.raised = True
+        signal.signal(signal.SIGINT, self.previous)
+        print("\nCtrl-C: stopping after this chunk's checkpoint (Ctrl-C again stops now, losing the chunk)",
+              file=sys.stderr, flush=True)
+
+    def restore(self) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+            self.previous = None
 
 
 def model_labels(record: dict, n: int) -> list[str]:

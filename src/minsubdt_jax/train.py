@@ -50,8 +50,8 @@ from .parallel import (assert_same_across_processes, gather, init_distributed, i
 from .pipeline import load, prepare
 from .program import eval_record, evaluate_models, stack_models
 from .references import REFERENCE_SOURCES, references_record
-from .rundir import (DATASET_FILE, check_run_dir, check_same_data, exit_code, plot_learning_curve, progress,
-                     truncate_metrics, write_atomic)
+from .rundir import (DATASET_FILE, InterruptFlag, Interrupted, RunLock, check_run_dir, check_same_data, exit_code,
+                     json_text, plot_learning_curve, progress, truncate_metrics, write_atomic)
 
 # Fields that may differ between a run and its resumption.
 RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_periodic", "out", "preset", "devices",
@@ -60,6 +60,16 @@ RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_peri
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True,
           progress_fn: Callable[[int, dict], None] | None = None, metrics=None) -> dict:
+    """Run one training job end to end in ``cfg.run_dir()`` (:func:`_train`), its run directory locked against a
+    second writer from its first write to its end."""
+    lock = RunLock()
+    try:
+        return _train(cfg, resume, verbose, progress_fn, metrics, lock)
+    finally:
+        lock.release()
+
+
+def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock: RunLock) -> dict:
     """Run one training job end to end in ``cfg.run_dir()``; returns the contents of ``results.json``.
 
     One model per method of ``cfg.methods`` and seed (``cfg.seed ...``, ``cfg.seeds`` of them), method-major, trains
@@ -121,7 +131,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     sha256 = "+".join(src.sha256 for src in sources)
     check_same_data(out, sha256, resume)
     if main:
-        os.makedirs(out, exist_ok=True)
+        lock.acquire(out)  # a second process into the same --out stops here, having written nothing
         write_atomic(os.path.join(out, "config.json"), cfg.to_json())
         record = lambda src: {"path": src.path, "sha256": src.sha256, "episodes": src.data.num_trajectories,  # noqa
                               "transitions": src.data.num_transitions, "dynamics": dynamics,
@@ -156,7 +166,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     def log(record):
         if main:
             with open(metrics_path, "a") as f:
-                f.write(json.dumps(record) + "\n")
+                f.write(json_text(record) + "\n")
             loggers.log(record)
         if progress_fn is not None:
             progress_fn(record["step"], record)
@@ -168,6 +178,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     t0 = time.time()
     step = start
     bar = progress(total=cfg.steps, initial=start, disable=not verbose)
+    stop = InterruptFlag()  # Ctrl-C: this chunk and its checkpoint first, then one line with the resume command
     try:  # an interruption (Ctrl-C, an error, a progress_fn that stops the run) still completes the last checkpoint
         while step < cfg.steps:
             n = min(cfg.chunk_steps, cfg.steps - step)
@@ -197,7 +208,11 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
             mngr.save(step, args=ocp.args.StandardSave(state))
             bar.set_postfix(loss=f"{per_seed.mean():.4f}")
             bar.update(n)
+            if stop.raised and step < cfg.steps:
+                raise Interrupted(f"stopped after the checkpoint at step {step} of {cfg.steps}; resume with: python "
+                                  f"-m minsubdt_jax.train --config {os.path.join(out, 'config.json')} --resume")
     finally:
+        stop.restore()
         mngr.wait_until_finished()
     bar.close()
     train_seconds = time.time() - t0
@@ -246,7 +261,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
                 + f"; dominate the mean demo (no metric worse, one better): {100 * e['better_than_mean_demo_share']:.0f} %")
     if main:
         loggers.close()
-        write_atomic(os.path.join(out, "results.json"), json.dumps(results, indent=2))
+        write_atomic(os.path.join(out, "results.json"), json_text(results, indent=2))
         plot_learning_curve(metrics_path, os.path.join(out, "learning_curve.png"))
     if verbose:
         print(f"wrote {out}/results.json", flush=True)

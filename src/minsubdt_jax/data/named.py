@@ -145,9 +145,13 @@ def resolve_dataset(env: str, dataset: str, *, transitions: int | None = None, h
     except ValueError as e:
         raise DatasetError(str(e)) from None
     path = dataset_path(env, dataset, transitions, horizon, seed, physics)
-    with _lock(path):
+    if os.path.exists(path):  # complete (it appears only by a rename): read it without the lock, so a read-only
+        _remove_orphans(path)  # cache works
+        return _checked(_open_cached(path, env, dataset), env)
+    with _lock(path, dataset):
         if os.path.exists(path):
             return _checked(_open_cached(path, env, dataset), env)
+        _remove_orphans(path, locked=True)
         t0 = time.time()
         if dataset == "medium-expert":
             parts = [resolve_dataset(env, d, transitions=transitions, horizon=horizon, seed=seed, verbose=verbose,
@@ -180,15 +184,44 @@ def _open_cached(path: str, env: str, dataset: str) -> DatasetFile:
 
 
 @contextlib.contextmanager
-def _lock(path: str):
-    """An exclusive lock on ``path + '.lock'`` (blocks while another process holds it)."""
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    with open(path + ".lock", "a") as f:
+def _lock(path: str, dataset: str = "the dataset"):
+    """An exclusive lock on ``path + '.lock'`` (blocks while another process holds it); a cache folder that cannot
+    be written is one DatasetError."""
+    try:
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        f = open(path + ".lock", "a")
+    except OSError as e:
+        raise DatasetError(f"cannot record {dataset} into the cache {os.path.dirname(path)} ({e.strerror or e}): "
+                           f"set XDG_CACHE_HOME to a writable folder") from None
+    with f:
         fcntl.flock(f, fcntl.LOCK_EX)
         try:
             yield
         finally:
             fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _remove_orphans(path: str, locked: bool = False) -> None:
+    """Remove the temporary files that killed recordings of ``path`` left (``save_d4rl`` writes ``<name>.*.tmp``
+    and renames it). Only while no process records it: under its lock (``locked``), or when the lock can be taken
+    at once; a cache that cannot be written is left as it is."""
+    folder, name = os.path.split(path)
+    try:
+        orphans = [os.path.join(folder, f) for f in os.listdir(folder) if f.startswith(name + ".") and
+                   f.endswith(".tmp")]
+        if not orphans:
+            return
+        if locked:
+            for o in orphans:
+                os.remove(o)
+            return
+        with open(path + ".lock", "a") as f:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)  # raises while a recording holds it
+            for o in orphans:
+                os.remove(o)
+            fcntl.flock(f, fcntl.LOCK_UN)
+    except OSError:
+        pass
 
 
 def summary(env: str, data: Trajectories, horizon: int = 1000) -> dict:

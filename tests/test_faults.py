@@ -1,0 +1,164 @@
+"""Faults and odd input (issue 56): a second writer into a run directory, non-finite numbers, Ctrl-C, file modes,
+a plot into a missing folder. Each case is one clear line and leaves nothing half-written."""
+
+import json
+import os
+import signal
+import threading
+
+import pytest
+
+SMOKE = ["--preset", "smoke", "--env", "hopper", "--episode-length", "60"]
+
+
+def _main(args, capsys):
+    from minsubdt_jax.train import main
+
+    code = main(args)
+    return code, capsys.readouterr().err
+
+
+def test_a_second_writer_into_the_same_out_is_one_error_and_writes_nothing(tmp_path, small_dataset_path, capsys):
+    """Two trainings into one --out used to both run, interleaving metrics.jsonl and mixing checkpoints. The run
+    directory is locked from its first write to its end: while another process holds it, a training into it is
+    one error line naming the holder (exit 2) and writes nothing there; once released, it is free again."""
+    from minsubdt_jax.rundir import LOCK_FILE, RunLock
+
+    out = tmp_path / "run"
+    holder = RunLock()
+    holder.acquire(str(out))  # as a running training holds it (its own open of the file: the lock conflicts)
+    try:
+        code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], capsys)
+    finally:
+        holder.release()
+    assert code == 2 and f"is in use by process {os.getpid()}" in err and err.strip().count("\n") == 0
+    assert sorted(os.listdir(out)) == [LOCK_FILE]
+    again = RunLock()
+    again.acquire(str(out))
+    again.release()
+
+
+@pytest.mark.parametrize("flag,value", [("--target-return", "nan"), ("--learning-rate", "inf"),
+                                        ("--beta=-inf", None), ("--rtg-scale", "nan")])
+def test_a_non_finite_number_is_one_error_before_anything_is_written(tmp_path, capsys, flag, value):
+    """`--target-return nan` used to run and write NaN scores and a bare NaN into results.json: every float flag must
+    be finite (one error line, exit 2, no run directory)."""
+    out = tmp_path / "never"
+    code, err = _main([*SMOKE, flag, *([value] if value else []), "--out", str(out)], capsys)
+    assert code == 2 and f"{flag.split('=')[0]} must be a finite number" in err and not out.exists()
+
+
+def test_results_are_always_valid_json():
+    """A non-finite value that reaches a record (an evaluation's NaN) is written as null, never as bare NaN."""
+    from minsubdt_jax.rundir import json_text
+
+    text = json_text({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf"), "e": 2}})
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(f"bare {c}")) == {"a": None, "b": [1.0, None],
+                                                                                    "c": {"d": None, "e": 2}}
+
+
+@pytest.mark.parametrize("umask,mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_written_files_respect_the_umask(tmp_path, umask, mode):
+    """Run and cache files were created 0600 whatever the umask (mkstemp's mode): they take the umask's."""
+    from minsubdt_jax.rundir import write_atomic
+
+    old = os.umask(umask)
+    try:
+        write_atomic(str(tmp_path / "f.json"), "{}")
+    finally:
+        os.umask(old)
+    assert os.stat(tmp_path / "f.json").st_mode & 0o777 == mode
+
+
+def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_path, small_dataset_path, capsys):
+    """Ctrl-C used to print a 42-line traceback. During training it finishes the current chunk and its checkpoint,
+    then stops with one line that gives the resume command (exit 130, no results.json); that command finishes the
+    run. The key press itself is acknowledged at once (the chunk may take minutes). Here the SIGINT arrives while the first of two 10-step chunks is being logged."""
+    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.rundir import Interrupted, exit_code
+    from minsubdt_jax.train import main, train
+
+    out = tmp_path / "run"
+    cfg, _ = parse_args([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "1"])
+
+    def ctrl_c(step, record):
+        if "loss" in record and step == 10:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(Interrupted, match=r"at step 10 of 20; resume with: python -m minsubdt_jax.train --config "
+                                          r".*config\.json --resume") as e:
+        train(cfg, verbose=False, progress_fn=ctrl_c)
+    assert sorted(d for d in os.listdir(out / "checkpoints") if d.isdigit()) == ["10"]
+    assert not (out / "results.json").exists()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is given back
+    assert "Ctrl-C: stopping after this chunk's checkpoint" in capsys.readouterr().err  # said when pressed
+
+    def stopped():
+        raise e.value
+    assert exit_code(stopped) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("interrupted: stopped after the checkpoint") and err.strip().count("\n") == 0
+    resume = str(e.value).split("resume with: python -m minsubdt_jax.train ")[1].split()
+    assert main(resume) == 0
+    assert json.loads((out / "results.json").read_text())["train"]["steps_this_run"] == 10
+
+
+def test_plot_into_a_missing_folder_is_one_error(tmp_path, capsys):
+    from minsubdt_jax.plot import main as plot_main
+
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "metrics.jsonl").write_text(json.dumps({"step": 1, "loss": 1.0, "loss_per_seed": [1.0]}) + "\n")
+    assert plot_main([str(tmp_path / "run"), "--out", str(tmp_path / "missing" / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "the folder" in err and "does not exist" in err and err.strip().count("\n") == 0
+    assert not (tmp_path / "missing").exists()
+
+
+def _cached(small_dataset, monkeypatch, tmp_path):
+    """A cached 'medium' recording of the small dataset's shape (as resolve_dataset names its cache files)."""
+    from minsubdt_jax.data import save_d4rl
+    from minsubdt_jax.data.named import dataset_path
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    path = dataset_path("hopper", "medium", 2000, 60, 0, "mujoco")
+    os.makedirs(os.path.dirname(path))
+    save_d4rl(small_dataset, path, env="hopper", dynamics="brax", physics="mujoco")
+    return path
+
+
+def test_a_cached_dataset_loads_from_a_cache_that_cannot_be_written(small_dataset, monkeypatch, tmp_path):
+    """A read-only cache that holds the dataset used to be a 33-line traceback (the lock beside the file could not
+    be created). Reading a complete cached file takes no lock. (As root a chmod does not stop writes, so the
+    unwritable folder is played by a lock that fails as one on a read-only file system does.)"""
+    from minsubdt_jax.data import named
+
+    path = _cached(small_dataset, monkeypatch, tmp_path)
+
+    def read_only(*_a, **_k):
+        raise PermissionError(30, "Read-only file system")
+    monkeypatch.setattr(named, "_lock", read_only)
+    monkeypatch.setattr(named.os, "remove", read_only)
+    f = named.resolve_dataset("hopper", "medium", transitions=2000, horizon=60, verbose=False, physics="mujoco")
+    assert f.path == path and f.data.num_trajectories == small_dataset.num_trajectories
+
+
+def test_a_killed_recordings_temporary_file_is_removed_when_no_one_records(small_dataset, monkeypatch, tmp_path):
+    """A killed recording left its `<name>.*.tmp` forever. It is removed the next time the dataset is asked for and
+    no process holds its recording lock; while one does (a live recording's file), it is kept."""
+    import fcntl
+
+    from minsubdt_jax.data import named
+
+    path = _cached(small_dataset, monkeypatch, tmp_path)
+    orphan = path + ".k1ll3d.tmp"
+    open(orphan, "w").write("half a file")
+    load = threading.Thread(target=named.resolve_dataset, args=("hopper", "medium"), daemon=True,
+                            kwargs=dict(transitions=2000, horizon=60, verbose=False, physics="mujoco"))
+    with open(path + ".lock", "a") as held:  # a recording in progress
+        fcntl.flock(held, fcntl.LOCK_EX)
+        load.start()
+        load.join(timeout=60)  # a complete file loads without waiting for the lock
+        assert not load.is_alive() and os.path.exists(orphan)
+        fcntl.flock(held, fcntl.LOCK_UN)
+    named.resolve_dataset("hopper", "medium", transitions=2000, horizon=60, verbose=False, physics="mujoco")
+    assert not os.path.exists(orphan) and os.path.exists(path)
