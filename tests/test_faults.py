@@ -162,3 +162,58 @@ def test_a_killed_recordings_temporary_file_is_removed_when_no_one_records(small
         fcntl.flock(held, fcntl.LOCK_UN)
     named.resolve_dataset("hopper", "medium", transitions=2000, horizon=60, verbose=False, physics="mujoco")
     assert not os.path.exists(orphan) and os.path.exists(path)
+
+
+def test_a_malformed_minari_id_is_one_error_and_leaves_no_folder(small_dataset_path, monkeypatch, tmp_path, capsys):
+    """`--export-minari "bad id with spaces"` left a folder under the Minari datasets path that broke every later
+    `minari:` load until removed by hand. A malformed id (or one without -v<version>) is one error line before
+    anything is recorded or written, and Minari's own listing still works."""
+    import minari
+
+    from minsubdt_jax.data.__main__ import main as data_main
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    for bad in ("bad id with spaces", "minsubdt/hopper-medium"):
+        assert data_main(["--env", "hopper", "--dataset", small_dataset_path, "--export-minari", bad]) == 2
+        err = capsys.readouterr().err
+        assert "is not a Minari dataset id" in err and err.strip().count("\n") == 0
+    assert not (tmp_path / "minari").exists() or not os.listdir(tmp_path / "minari")
+    assert minari.list_local_datasets() == {}
+
+
+def test_a_configuration_that_cannot_fit_in_memory_is_one_error(tmp_path, small_dataset_path, capsys):
+    """A context far beyond the horizon, or a huge batch, was an out-of-memory kill without a message or a 42-line
+    XLA traceback. A context longer than an episode is refused, and a train step whose estimated memory exceeds
+    what the device has is one error line naming the flags, before anything is written."""
+    out = tmp_path / "never"
+    code, err = _main([*SMOKE, "--context-len", "80", "--out", str(out)], capsys)
+    assert code == 2 and "--context-len 80 is longer than an episode" in err and not out.exists()
+    for flags in (["--context-len", "5000", "--episode-length", "5000"], ["--batch-size", "100000000"]):
+        code, err = _main([*SMOKE, "--dataset", small_dataset_path, *flags, "--out", str(out)], capsys)
+        assert code == 2 and "GiB available: lower --context-len or --batch-size" in err, err
+        assert err.strip().count("\n") == 0 and not out.exists()
+
+
+def test_the_memory_estimate_is_above_xlas_own_and_within_2x():
+    """The estimate the check uses against XLA's own temporary memory for one compiled DT step (smoke preset, and
+    with 4x the context): never below it, at most 2x above."""
+    import dataclasses
+
+    import jax
+    import numpy as np
+
+    from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_step
+    from minsubdt_jax.agents.dt.agent import make_dt_agent, train_step_bytes
+    from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.data import Trajectories, sampler_data
+
+    n, T, obs, act = 4, 40, 11, 3
+    ds = Trajectories(np.zeros((n, T, obs), np.float32), np.zeros((n, T, act), np.float32), np.zeros((n, T), np.float32),
+                      np.full(n, T, np.int32), np.zeros(n, bool))
+    data = sampler_data(ds, np.zeros((n, T)), np.zeros(obs, np.float32), np.ones(obs, np.float32))
+    for over in ({}, {"context_len": 20, "batch_size": 32}):
+        cfg = dataclasses.replace(PRESETS["smoke"], **over)
+        agent, tx = make_dt_agent(cfg, obs, act, T), make_optimizer(cfg)
+        xla = jax.jit(make_train_step(agent, tx, cfg.batch_size)).lower(
+            init_state(agent, tx, jax.random.PRNGKey(0)), data).compile().memory_analysis().temp_size_in_bytes
+        assert xla <= train_step_bytes(cfg, 1) <= 2 * xla, (over, xla, train_step_bytes(cfg, 1))

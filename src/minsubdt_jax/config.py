@@ -211,6 +211,9 @@ def validate(cfg: Config) -> Config:
     for name in positive:
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if cfg.context_len > cfg.episode_length:
+        raise ValueError(f"--context-len {cfg.context_len} is longer than an episode (--episode-length "
+                         f"{cfg.episode_length})")
     if cfg.seed < 0 or cfg.dataset_seed < 0:
         raise ValueError(f"--seed and --dataset-seed must be >= 0, got {cfg.seed} and {cfg.dataset_seed}")
     if cfg.eval_every < 0 or cfg.eval_every % cfg.chunk_steps:

@@ -99,6 +99,19 @@ def make_mesh(num_devices: int = 0, batch_size: int | None = None) -> Mesh:
     return Mesh(np.asarray(devices), (AXIS,))
 
 
+def available_bytes() -> int | None:
+    """The memory a program can take on one local device: its allocator's limit on an accelerator, else the host's
+    available memory (``MemAvailable``); None where neither is known."""
+    stats = jax.local_devices()[0].memory_stats() or {}
+    if "bytes_limit" in stats:
+        return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0))
+    try:
+        with open("/proc/meminfo") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration, ValueError):
+        return None
+
+
 def replicate(tree, mesh: Mesh):
     """Place every array of ``tree`` whole on every device of ``mesh`` (every process passes the same values)."""
     return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))

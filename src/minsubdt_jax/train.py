@@ -37,6 +37,7 @@ import orbax.checkpoint as ocp
 
 from .agents import FIXED_STEPS, batch_size_of, make_agent
 from .agents.base import eval_params, init_seed_states, make_train_chunk, optimizer_for
+from .agents.dt.agent import train_step_bytes
 from .agents.dt.networks import DT_REVISION
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
@@ -46,7 +47,8 @@ from .envs import physics_record, resolve_physics
 from .evaluation import across_seeds
 from .loggers import Loggers, logger_names
 from .methods import get_method
-from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh, replicate)
+from .parallel import (assert_same_across_processes, available_bytes, gather, init_distributed, is_main_process,
+                       make_mesh, replicate)
 from .pipeline import load, prepare
 from .program import eval_record, evaluate_models, stack_models
 from .references import REFERENCE_SOURCES, references_record
@@ -96,6 +98,7 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES, dataclasses.asdict(Config()))
     batch_size = batch_size_of(methods[0].agent, cfg)
     mesh = make_mesh(cfg.devices, batch_size)  # checked before anything is written
+    check_memory(cfg, methods[0].agent, len(cfg.datasets) * len(methods) * cfg.seeds, mesh.size)
     physics = resolve_physics(cfg.physics, mesh)
     seeds = list(range(cfg.seed, cfg.seed + cfg.seeds))
     models = [(m, s) for m in methods for s in seeds]
@@ -266,6 +269,18 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     if verbose:
         print(f"wrote {out}/results.json", flush=True)
     return results
+
+
+def check_memory(cfg: Config, agent: str, n_models: int, n_devices: int) -> None:
+    """A DT configuration whose train step cannot fit in memory (a long context, a huge batch) is one error here,
+    before anything is written, not an out-of-memory kill without a message (:func:`train_step_bytes`)."""
+    have = available_bytes()
+    need = train_step_bytes(cfg, n_models) / n_devices if agent == "dt" else 0
+    if have is not None and need > have:
+        raise ValueError(f"one train step of {n_models} model(s) at --context-len {cfg.context_len}, --batch-size "
+                         f"{cfg.batch_size}, --embed-dim {cfg.embed_dim}, --n-layers {cfg.n_layers} needs ~"
+                         f"{need / 2 ** 30:.1f} GiB per device, more than the {have / 2 ** 30:.1f} GiB available: "
+                         f"lower --context-len or --batch-size (or train fewer models per program)")
 
 
 def platform() -> dict:

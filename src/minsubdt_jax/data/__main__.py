@@ -24,7 +24,7 @@ from ..envs import ENVS, PHYSICS, resolve_physics
 from ..rundir import exit_code
 from ..subdominance import min_subdominance
 from .d4rl import file_dynamics, replay_report
-from .minari_io import export_minari
+from .minari_io import check_minari_id, export_minari
 from .dataset import DatasetError
 from .named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary_line
 
@@ -110,6 +110,7 @@ def export(env: str, dataset: str, dataset_id: str, transitions: int | None, hor
     (:func:`~minsubdt_jax.data.minari_io.export_minari`), in the dynamics it was recorded in."""
     if importlib.util.find_spec("minari") is None:  # before anything is recorded
         raise DatasetError("--export-minari needs the minari package: pip install 'minsubdt-jax[minari]'")
+    check_minari_id(dataset_id)
     f = resolve_dataset(env, dataset, transitions=transitions, horizon=horizon, seed=seed, physics=physics)
     dynamics, how = file_dynamics(f, env)
     folder = export_minari(f, env, dataset_id, dynamics)

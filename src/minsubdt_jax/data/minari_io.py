@@ -40,6 +40,18 @@ def _minari():
     return minari
 
 
+def check_minari_id(dataset_id: str) -> None:
+    """DatasetError unless ``dataset_id`` is a Minari id with a version (a malformed one left a folder that broke
+    every later Minari load until removed by hand)."""
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    try:
+        parse_dataset_id(dataset_id)
+    except (ValueError, TypeError):  # TypeError: no -v<version>
+        raise DatasetError(f"--export-minari {dataset_id!r} is not a Minari dataset id: (namespace/)name-v<version>, "
+                           f"of letters, digits, '-' and '_' (e.g. minsubdt/hopper/medium-v0)") from None
+
+
 def export_minari(f: DatasetFile, env: str, dataset_id: str, dynamics: str) -> str:
     """Write ``f`` (episodes of ``env`` in ``dynamics``) as the local Minari dataset ``dataset_id``; returns its
     folder. Raises DatasetError if the file records no physics states or the id is taken."""
@@ -47,6 +59,7 @@ def export_minari(f: DatasetFile, env: str, dataset_id: str, dynamics: str) -> s
     import gymnasium as gym
     from minari.data_collector.episode_buffer import EpisodeBuffer
 
+    check_minari_id(dataset_id)
     if dataset_id in minari.list_local_datasets():
         raise DatasetError(f"a local Minari dataset {dataset_id!r} exists already (minari delete {dataset_id})")
     infos = read_infos(f.path)
