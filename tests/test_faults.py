@@ -217,3 +217,18 @@ def test_the_memory_estimate_is_above_xlas_own_and_within_2x():
         xla = jax.jit(make_train_step(agent, tx, cfg.batch_size)).lower(
             init_state(agent, tx, jax.random.PRNGKey(0)), data).compile().memory_analysis().temp_size_in_bytes
         assert xla <= train_step_bytes(cfg, 1) <= 2 * xla, (over, xla, train_step_bytes(cfg, 1))
+
+
+def test_actions_outside_the_bounds_are_refused_with_one_line(small_dataset, tmp_path, capsys):
+    """A dataset whose actions lie outside [-1, 1] (x3) was trained on silently. The envs clip every action to
+    [-1, 1], so such data cannot come from them: one error line, nothing written."""
+    import dataclasses
+
+    from minsubdt_jax.data import save_d4rl
+
+    path = str(tmp_path / "x3.hdf5")
+    save_d4rl(dataclasses.replace(small_dataset, actions=3 * small_dataset.actions), path)
+    out = tmp_path / "never"
+    code, err = _main([*SMOKE, "--dataset", path, "--out", str(out)], capsys)
+    assert code == 2 and "outside hopper's action bounds [-1, 1]" in err and err.strip().count("\n") == 0
+    assert not out.exists()

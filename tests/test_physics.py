@@ -102,6 +102,10 @@ def test_check_dynamics_tells_brax_data_from_d4rl_data():
         reports[dyn] = dynamics_report("hopper", data, qpos, qvel, transitions=300)
         assert reports[dyn]["best"] == dyn and reports[dyn]["dynamics"][dyn]["reproduced"] == 1.0
         assert reports[dyn]["dynamics"][other]["reproduced"] < 0.5
+    # the same states with other actions (data no env produced): neither reproduces it, and the report says so
+    shuffled = from_padded(data.observations, np.roll(data.actions, 1, axis=0), data.rewards, data.lengths,
+                           data.terminals)
+    assert dynamics_report("hopper", shuffled, qpos, qvel, transitions=300)["best"] == "neither"
 
 
 def test_physics_names_are_checked():

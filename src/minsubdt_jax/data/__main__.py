@@ -24,6 +24,7 @@ from ..envs import ENVS, PHYSICS, resolve_physics
 from ..rundir import exit_code
 from ..subdominance import min_subdominance
 from .d4rl import file_dynamics, replay_report
+from ..envs.check import NEITHER
 from .minari_io import check_minari_id, export_minari
 from .dataset import DatasetError
 from .named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary_line
@@ -129,7 +130,9 @@ def check(env: str, dataset: str, transitions: int, horizon: int, seed: int, phy
     for name, r in rep["dynamics"].items():
         print(f"  {name:5s} largest |Δobs| {r['max']:.3g}, median {r['median']:.3g}, reproduced "
               f"{100 * r['reproduced']:.1f} %")
-    print(f"the data came from the {rep['best']} dynamics" + (f" (the file says {f.dynamics})" if f.dynamics else ""))
+    said = f" (the file says {f.dynamics})" if f.dynamics else ""
+    print(f"the data came from the {rep['best']} dynamics{said}" if rep["best"] != NEITHER else
+          f"neither dynamics reproduces the data{said}: it was recorded in other physics, or edited")
     print(json.dumps({"path": f.path, **rep}))
     return rep
 

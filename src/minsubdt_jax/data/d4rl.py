@@ -19,6 +19,7 @@ import h5py
 import numpy as np
 
 from ..envs import dynamics_report
+from ..envs.check import NEITHER
 from ..envs.rules import check_dynamics_name
 from .dataset import REQUIRED_KEYS, DatasetError, Trajectories, checksum, from_flat, infer_timeouts
 
@@ -154,6 +155,10 @@ def file_dynamics(f: DatasetFile, env: str, dynamics: str | None = None) -> tupl
     if "qpos" not in infos or "qvel" not in infos:
         return "d4rl", {"how": "a D4RL-layout file without physics states: D4RL's (gym's) dynamics assumed"}
     report = replay_report(f, env, infos=infos)
+    if report["best"] == NEITHER:
+        raise DatasetError(f"{f.path}: no dynamics reproduces its recorded transitions (" + ", ".join(
+            f"{k} {100 * r['reproduced']:.0f} %" for k, r in report["dynamics"].items()) + "): it was not recorded in "
+            f"one of ours; pass --dynamics brax or d4rl to evaluate in one anyway")
     return report["best"], {"how": "checked: replayed from infos/qpos, infos/qvel", **report}
 
 

@@ -70,6 +70,9 @@ def final_observations(env: str, dynamics: str, data, qpos, qvel) -> np.ndarray:
     return _step_observe(env, dynamics, source, qpos[last], qvel[last], act)
 
 
+NEITHER = "neither"  # dynamics_report's answer for data that no dynamics reproduces
+
+
 def check_dynamics(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: int = 0) -> dict:
     """``{dynamics name: largest one-step |Δobs|}`` over sampled transitions of ``data`` (a
     :class:`~minsubdt_jax.data.Trajectories`) replayed from their recorded physics states ``qpos``, ``qvel``
@@ -84,11 +87,13 @@ def check_dynamics(env: str, data, qpos, qvel, *, transitions: int = 2000, seed:
 def dynamics_report(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: int = 0,
                     tolerance: float = DEFAULT_TOLERANCE) -> dict:
     """The check as the data CLI prints it: per dynamics the largest and median ``|Δobs|`` and the share of
-    transitions reproduced within ``tolerance``; ``best``: the dynamics that reproduces most (ties: smaller median)."""
+    transitions reproduced within ``tolerance``; ``best``: the dynamics that reproduces most (ties: smaller median),
+    or ``"neither"`` where none reproduces half of them (data from other physics, or edited)."""
     errs = replay_errors(env, data, qpos, qvel, transitions=transitions, seed=seed)
     per = {k: {"max": float(e.max()), "median": float(np.median(e)), "reproduced": float(np.mean(e <= tolerance))}
            for k, e in errs.items()}
     best = max(per, key=lambda k: (per[k]["reproduced"], -per[k]["median"]))
+    best = best if per[best]["reproduced"] >= 0.5 else NEITHER
     return {"dynamics": per, "best": best, "tolerance": tolerance, "transitions": int(len(next(iter(errs.values()))))}
 
 

@@ -57,7 +57,8 @@ def check_dataset(env: str, observations, actions, lengths, recorded_env: str | 
 
     The shapes must be the env's. Where several envs share them (walker and halfcheetah), the episodes' first
     states must be nearer this env's reset state than another's (median ``obs[0]`` against ``reset_obs0``).
-    ``recorded_env`` (the env a file of ours names) must be ``env``."""
+    ``recorded_env`` (the env a file of ours names) must be ``env``, and the actions within the env's bounds
+    [-1, 1] (the envs clip to them)."""
     spec = env_spec(env)
     if recorded_env is not None and env_spec(recorded_env) != spec:
         raise ValueError(f"the dataset was recorded in {recorded_env}, not in {spec.name}: pass --env {recorded_env}")
@@ -66,6 +67,10 @@ def check_dataset(env: str, observations, actions, lengths, recorded_env: str | 
         fits = [s.name for s in ENVS.values() if (s.obs_dim, s.act_dim) == shape]
         raise ValueError(f"the dataset has observations of size {shape[0]} and actions of size {shape[1]}; {spec.name} "
                          f"has {spec.obs_dim} and {spec.act_dim}" + (f" (it fits {', '.join(fits)})" if fits else ""))
+    largest = float(np.max(np.abs(np.asarray(actions)))) if np.asarray(actions).size else 0.0
+    if largest > 1.0 + 1e-4:  # the envs clip every action to [-1, 1]: such data was not acted in them
+        raise ValueError(f"the dataset's actions lie outside {spec.name}'s action bounds [-1, 1] (largest |a| "
+                         f"{largest:.4g}): they cannot come from the env; clip or rescale them to [-1, 1] first")
     start = float(np.median(np.asarray(observations)[np.asarray(lengths) > 0, 0, 0]))
     same = [s for s in ENVS.values() if (s.obs_dim, s.act_dim) == shape]
     nearest = min(same, key=lambda s: abs(start - s.reset_obs0))
