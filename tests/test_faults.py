@@ -232,3 +232,28 @@ def test_actions_outside_the_bounds_are_refused_with_one_line(small_dataset, tmp
     code, err = _main([*SMOKE, "--dataset", path, "--out", str(out)], capsys)
     assert code == 2 and "outside hopper's action bounds [-1, 1]" in err and err.strip().count("\n") == 0
     assert not out.exists()
+
+
+def test_a_resume_never_changes_the_cost_metrics_a_run_trains_on(tmp_path, small_dataset_path, capsys):
+    """A run trained through the library on a CostMetric of one's own, resumed from the CLI, went on silently with
+    the default metrics (config.json said costs: null). The run records its metrics; a resume on others is one
+    error line, and through the library with the same metrics it goes on."""
+    import dataclasses
+
+    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.costs import CostMetric
+    from minsubdt_jax.train import train
+
+    lean = CostMetric("lean", lambda obs, act: abs(obs[..., 1]), lo=0.0, hi=0.5)
+    out = tmp_path / "own"
+    cfg, _ = parse_args([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0",
+                         "--steps", "10"])
+    train(cfg, verbose=False, metrics=["x_velocity", lean])
+    saved = json.loads((out / "cost_metrics.json").read_text())
+    assert [m["name"] for m in saved] == ["x_velocity", "lean"]
+    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0",
+                       "--steps", "20", "--resume"], capsys)
+    assert code == 2 and "trained on the cost metrics x_velocity, lean" in err and err.strip().count("\n") == 0
+    assert sorted(d for d in os.listdir(out / "checkpoints") if d.isdigit()) == ["10"]  # nothing trained
+    res = train(dataclasses.replace(cfg, steps=20), resume=True, verbose=False, metrics=["x_velocity", lean])
+    assert res["train"]["steps"] == 20 and [m["name"] for m in res["dataset"]["cost_metrics"]] == ["x_velocity", "lean"]

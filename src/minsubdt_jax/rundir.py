@@ -60,6 +60,24 @@ def check_same_data(out: str, sha256: str, resume: bool) -> None:
                          f"{sha256[:12]}…)")
 
 
+METRICS_FILE = "cost_metrics.json"  # the cost metrics a run trains on (a user's own ones cannot be named in --costs)
+
+
+def check_same_metrics(out: str, records: list[dict], resume: bool) -> None:
+    """On resume, the cost metrics (their ``CostMetric.record()``) must be those the run started on: a run trained
+    through the library on a metric of one's own, resumed from the CLI, would go on with the defaults."""
+    path = os.path.join(out, METRICS_FILE)
+    if not resume or not os.path.exists(path):  # a run of an older version records none
+        return
+    with open(path) as f:
+        saved = json.load(f)
+    if saved != records:
+        names = lambda rs: ", ".join(r["name"] for r in rs)  # noqa: E731
+        raise ValueError(f"--resume: the run trained on the cost metrics {names(saved)} ({METRICS_FILE}), not on "
+                         f"{names(records)}; a metric of one's own is given again with train(..., metrics=[...]), "
+                         f"which the command line cannot do")
+
+
 def checkpoint_steps(ckpt_dir: str) -> list[int]:
     """Steps of the checkpoints in ``ckpt_dir`` (orbax writes one numbered folder each)."""
     if not os.path.isdir(ckpt_dir):

@@ -52,8 +52,9 @@ from .parallel import (assert_same_across_processes, available_bytes, gather, in
 from .pipeline import load, prepare
 from .program import eval_record, evaluate_models, stack_models
 from .references import REFERENCE_SOURCES, references_record
-from .rundir import (DATASET_FILE, InterruptFlag, Interrupted, RunLock, check_run_dir, check_same_data, exit_code,
-                     json_text, plot_learning_curve, progress, truncate_metrics, write_atomic)
+from .rundir import (DATASET_FILE, METRICS_FILE, InterruptFlag, Interrupted, RunLock, check_run_dir, check_same_data,
+                     check_same_metrics, exit_code, json_text, plot_learning_curve, progress, truncate_metrics,
+                     write_atomic)
 
 # Fields that may differ between a run and its resumption.
 RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_periodic", "out", "preset", "devices",
@@ -105,8 +106,8 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     # before anything is written: bad data changes nothing. Only learned costs depend on the seed.
     if metrics is not None and cfg.costs is not None:
         raise ValueError("give the cost metrics once: as cfg.costs (names) or as train(..., metrics=...)")
-    if metrics is not None:
-        cost_metrics(cfg.env, metrics)  # checked before anything is written
+    chosen = [m.record() for m in cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)]  # checked
+    check_same_metrics(out, chosen, resume)  # before anything is written
     names = cfg.datasets
     sources = [load(dataclasses.replace(cfg, dataset=d), verbose, physics) for d in names]
     found = [file_dynamics(src, cfg.env, cfg.dynamics) for src in sources]
@@ -136,6 +137,7 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     if main:
         lock.acquire(out)  # a second process into the same --out stops here, having written nothing
         write_atomic(os.path.join(out, "config.json"), cfg.to_json())
+        write_atomic(os.path.join(out, METRICS_FILE), json_text(chosen, indent=2))
         record = lambda src: {"path": src.path, "sha256": src.sha256, "episodes": src.data.num_trajectories,  # noqa
                               "transitions": src.data.num_transitions, "dynamics": dynamics,
                               "recorded_physics": src.physics}
