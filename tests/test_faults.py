@@ -257,3 +257,39 @@ def test_a_resume_never_changes_the_cost_metrics_a_run_trains_on(tmp_path, small
     assert sorted(d for d in os.listdir(out / "checkpoints") if d.isdigit()) == ["10"]  # nothing trained
     res = train(dataclasses.replace(cfg, steps=20), resume=True, verbose=False, metrics=["x_velocity", lean])
     assert res["train"]["steps"] == 20 and [m["name"] for m in res["dataset"]["cost_metrics"]] == ["x_velocity", "lean"]
+
+
+def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(capsys, tmp_path, monkeypatch):
+    """What a newcomer reads: `train --help` names every method and says where evaluation runs (C MuJoCo on a CPU,
+    not only MJX); `train --costs list` prints the metrics (it was an error); `data --help` explains --env, --seed
+    and --horizon; TensorBoard tags every per-model list `<metric>/<method>-s<seed>` (the loss was tagged
+    `loss_per_seed/0`); the learning curve's figure is titled with env, dataset and method."""
+    from minsubdt_jax import loggers, rundir
+    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.data.__main__ import main as data_main
+    from minsubdt_jax.methods import METHODS
+
+    with pytest.raises(SystemExit):
+        parse_args(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(m in text for m in METHODS) and "C MuJoCo on a CPU" in text
+    with pytest.raises(SystemExit) as e:
+        parse_args(["--env", "hopper", "--costs", "list"])
+    assert e.value.code == 0 and "x_velocity:" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        data_main(["--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    for flag in ("--env {hopper,walker,halfcheetah} the environment", "--seed SEED the recording's seed",
+                 "--horizon HORIZON the episodes' length limit"):
+        assert flag in help_text, flag
+    tags = loggers.scalars({"step": 10, "loss_per_seed": [0.5, 0.7]}, ["minsubdt-s0", "dt-s0"])
+    assert set(tags) == {"loss_per_seed/minsubdt-s0", "loss_per_seed/dt-s0", "loss_per_seed/mean"}
+    ev = loggers.scalars({"step": 10, "eval_return": [1.0, 2.0], "eval_method": ["minsubdt", "dt"],
+                          "eval_seed": [0, 0]}, ["minsubdt-s0", "dt-s0"])
+    assert set(ev) == {"eval_return/minsubdt-s0", "eval_return/dt-s0", "eval_return/mean"}
+    (tmp_path / "metrics.jsonl").write_text(json.dumps({"step": 10, "loss": 0.5, "loss_per_seed": [0.5]}) + "\n")
+    titles = []
+    import matplotlib.figure
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *_a, **_k: titles.append(fig._suptitle))
+    rundir.plot_learning_curve(str(tmp_path / "metrics.jsonl"), str(tmp_path / "c.png"), "hopper medium: dt (1 seed)")
+    assert titles[0].get_text() == "hopper medium: dt (1 seed)"

@@ -43,6 +43,7 @@ def test_smoke_train_and_evaluate(full_run):
     with `--ema-decay` the step-10 evaluation also scores the raw parameters."""
     out, p = full_run
     assert "Spearman(-min-subdominance, true return)" in p.stdout
+    assert "compiling the train step" in p.stdout  # said before the first chunk's wait
     for name in ("config.json", "dataset.json", "metrics.jsonl", "results.json", "learning_curve.png"):
         assert (out / name).exists(), name
     cfg = json.loads((out / "config.json").read_text())

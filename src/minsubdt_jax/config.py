@@ -8,7 +8,7 @@ import json
 import math
 from dataclasses import dataclass
 
-from .costs import check_costs
+from .costs import check_costs, describe_metrics
 from .flags import add_flags, load_fields
 from .envs import DYNAMICS, PHYSICS
 from .loggers import logger_names
@@ -24,8 +24,10 @@ class Config:
     # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path; several, comma-separated, train
     # in one program (one env's: every model draws only its own dataset's episodes)
     dataset: str = "medium"
-    # minsubdt | minsubdt-learned | dt | bc | bc-mlp: see minsubdt_jax.methods (--returns subdom|learned|true|none
-    # still names the first four). Several, comma-separated, train in one program (they must share an agent)
+    # minsubdt | minsubdt-learned | dt | dt-total | dt-tied | bc | bc-mlp | iql | td3bc | cql | brac-v | bear | awr |
+    # minsubdt-iql | minsubdt-td3bc | minsubdt-cql | minsubdt-brac-v | minsubdt-bear | minsubdt-awr: see
+    # minsubdt_jax.methods (--returns subdom|learned|true|none still names the first four). Several,
+    # comma-separated, train in one program (they must share an agent)
     method: str = "minsubdt"
     seed: int = 0  # training and evaluation seed (the first one, with --seeds)
     seeds: int = 1  # train seeds seed, seed+1, ..., seed+seeds-1 as one program (vmapped in one jitted step)
@@ -251,7 +253,8 @@ def validate(cfg: Config) -> Config:
 def parse_args(argv=None) -> tuple[Config, bool]:
     """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
-                                description="Train a MinSubDT (or DT) on one dataset and evaluate it in MJX.")
+                                description="Train MinSubDT (or DT, BC, a critic agent) on a dataset and evaluate it in "
+                                            "batched physics: C MuJoCo on a CPU, MJX on an accelerator.")
     add_flags(p, Config, CHOICES, PRESETS, Config.preset)
     p.add_argument("--config", help="a config file (a run's config.json, or YAML) to start from; its fields "
                    "override the preset's and the flags given override its")
@@ -259,6 +262,9 @@ def parse_args(argv=None) -> tuple[Config, bool]:
                    help="older name of --method: " + ", ".join(f"{k} = {v}" for k, v in RETURNS_ALIASES.items()))
     p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
     args = vars(p.parse_args(argv))
+    if args["costs"] == "list":  # as the data CLI: the built-in metrics of --env, then exit
+        print("\n".join(describe_metrics(args["env"] or Config.env)))
+        raise SystemExit(0)
     resume = args.pop("resume")
     alias = args.pop("returns")
     if alias is not None:

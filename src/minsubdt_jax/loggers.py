@@ -29,9 +29,11 @@ def logger_names(spec: str | None) -> tuple[str, ...]:
     return names
 
 
-def scalars(record: dict) -> dict[str, float]:
-    """A ``metrics.jsonl`` record as flat scalars (module docstring); ``step`` and the labels are left out."""
-    labels = [f"{m}-s{s}" for m, s in zip(record.get("eval_method", []), record.get("eval_seed", []))]
+def scalars(record: dict, labels: list[str] | None = None) -> dict[str, float]:
+    """A ``metrics.jsonl`` record as flat scalars (module docstring); ``step`` and the labels are left out. A list
+    over the models is tagged ``key/<method>-s<seed>``: the record's own labels, else the run's ``labels``."""
+    own = [f"{m}-s{s}" for m, s in zip(record.get("eval_method", []), record.get("eval_seed", []))]
+    labels = own or labels or []
     out = {}
     for k, v in record.items():
         if k in ("step", "eval_method", "eval_seed", "final") or isinstance(v, (bool, str)) or v is None:
@@ -48,8 +50,8 @@ def scalars(record: dict) -> dict[str, float]:
 class Loggers:
     """The loggers of one run: ``log(record)`` and ``close()``."""
 
-    def __init__(self, names: tuple[str, ...], run_dir: str, config: dict):
-        self.writers = []
+    def __init__(self, names: tuple[str, ...], run_dir: str, config: dict, labels: list[str] | None = None):
+        self.writers, self.labels = [], labels  # labels: the models', <method>-s<seed>, for every per-model list
         if "tensorboard" in names:
             from tensorboardX import SummaryWriter
 
@@ -63,7 +65,7 @@ class Loggers:
             self.writers.append(("wandb", run))
 
     def log(self, record: dict) -> None:
-        values, step = scalars(record), int(record["step"])
+        values, step = scalars(record, self.labels), int(record["step"])
         for kind, w in self.writers:
             if kind == "tensorboard":
                 for k, v in values.items():

@@ -254,7 +254,7 @@ def model_labels(record: dict, n: int) -> list[str]:
     return [f"{d}/{m}" for d, m in zip(record["eval_dataset"], methods)] if "eval_dataset" in record else methods
 
 
-def plot_learning_curve(metrics_path: str, png_path: str) -> None:
+def plot_learning_curve(metrics_path: str, png_path: str, title: str | None = None) -> None:
     """From ``metrics.jsonl``: the training loss against step and, when the log holds evaluations, the normalised
     score and min-subdominance against step, one line per method (mean over its seeds, band from the lowest to
     the highest seed)."""
@@ -290,6 +290,8 @@ def plot_learning_curve(metrics_path: str, png_path: str) -> None:
             ax.legend(loc="best", fontsize=8)
     for ax in axes[0]:
         ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=11)
     fig.tight_layout()
     fig.savefig(png_path)
     plt.close(fig)

@@ -166,7 +166,8 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     if main:
         truncate_metrics(metrics_path, start)
 
-    loggers = Loggers(logger_names(cfg.logger), out, dataclasses.asdict(cfg)) if main else None
+    labels = [("" if len(mo) == 2 else f"{mo[0]}-") + f"{mo[-2].name}-s{mo[-1]}" for mo in models]
+    loggers = Loggers(logger_names(cfg.logger), out, dataclasses.asdict(cfg), labels) if main else None
 
     def log(record):
         if main:
@@ -188,6 +189,8 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
         while step < cfg.steps:
             n = min(cfg.chunk_steps, cfg.steps - step)
             if n not in chunks:
+                if verbose and not chunks:
+                    bar.write("compiling the train step (the first chunk waits for it) ...")
                 chunks[n] = make_train_chunk(agent, tx, batch_size, n, mesh, seed_axis=True, data_axis=data_axis,
                                              ema_decay=cfg.ema_decay)
             tc = time.time()
@@ -267,7 +270,8 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     if main:
         loggers.close()
         write_atomic(os.path.join(out, "results.json"), json_text(results, indent=2))
-        plot_learning_curve(metrics_path, os.path.join(out, "learning_curve.png"))
+        plot_learning_curve(metrics_path, os.path.join(out, "learning_curve.png"),
+                            f"{cfg.env} {cfg.dataset}: {cfg.method} ({len(seeds)} seed{'s' * (len(seeds) > 1)})")
     if verbose:
         print(f"wrote {out}/results.json", flush=True)
     return results

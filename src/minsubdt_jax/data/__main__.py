@@ -34,14 +34,17 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.data",
                                 description="Record a D4RL-style dataset from the committed behaviour policies, or "
                                             "check which dynamics a dataset file came from.")
-    p.add_argument("--env", required=True, choices=tuple(ENVS))
+    p.add_argument("--env", required=True, choices=tuple(ENVS), help="the environment the data is recorded in (or, "
+                   "for a file, checked against)")
     p.add_argument("--dataset", required=True, help=f"one of {', '.join(NAMED_DATASETS)}, or (with "
                                                     f"--check-dynamics) a D4RL-layout .hdf5 file")
     p.add_argument("--transitions", type=int, default=None,
                    help="at least this many transitions, in whole episodes (default D4RL's size: 1M; medium-replay "
                         "hopper 402k, walker 302k, halfcheetah 202k); medium-expert holds twice this")
-    p.add_argument("--horizon", type=int, default=1000, help="episode length before a time-out")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--horizon", type=int, default=1000, help="the episodes' length limit: an episode that has not "
+                   "fallen by then ends in a time-out (D4RL's 1000)")
+    p.add_argument("--seed", type=int, default=0, help="the recording's seed (resets and the behaviour policy's "
+                   "sampled actions); a recording is the same for the same seed and physics")
     p.add_argument("--physics", choices=PHYSICS, default="auto",
                    help="who steps the recording: C MuJoCo (mujoco), MJX (mjx), or auto (C MuJoCo on a CPU)")
     p.add_argument("--force", action="store_true", help="record again even if the cache holds the file")
