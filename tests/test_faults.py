@@ -293,3 +293,20 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *_a, **_k: titles.append(fig._suptitle))
     rundir.plot_learning_curve(str(tmp_path / "metrics.jsonl"), str(tmp_path / "c.png"), "hopper medium: dt (1 seed)")
     assert titles[0].get_text() == "hopper medium: dt (1 seed)"
+
+
+def test_a_failed_write_leaves_no_file_and_is_one_line(tmp_path, monkeypatch, capsys):
+    """A full disk (or a folder that cannot be written) during a write: no partial or temporary file is left
+    behind, the old file is kept whole, and the command says one line with the system's reason (exit 2)."""
+    from minsubdt_jax import rundir
+
+    target = tmp_path / "results.json"
+    target.write_text('{"old": 1}')
+
+    def full(*_a):
+        raise OSError(28, "No space left on device", str(target))
+    monkeypatch.setattr(rundir.os, "replace", full)
+    assert rundir.exit_code(lambda: rundir.write_atomic(str(target), '{"new": 2}')) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: No space left on device: {target}\n"
+    assert sorted(os.listdir(tmp_path)) == ["results.json"] and target.read_text() == '{"old": 1}'

@@ -217,6 +217,9 @@ def exit_code(run: Callable[[], object]) -> int:
     except KeyboardInterrupt:
         print("interrupted (Ctrl-C)", file=sys.stderr)
         return 130
+    except OSError as e:  # a full disk, a folder that cannot be written: what the system said, and where
+        print(f"error: {e.strerror or e}" + (f": {e.filename}" if e.filename else ""), file=sys.stderr)
+        return 2
     return 0
 
 
