@@ -219,3 +219,21 @@ def test_a_metric_of_ones_own_reaches_the_training_data_and_its_report(small_dat
     assert [m["name"] for m in prep.summary("hopper")["cost_metrics"]] == ["x_velocity", "fall", "lean"]
     with pytest.raises(ValueError, match="unknown cost metric 'speed'"):
         train(cfg, metrics=["speed"], verbose=False)
+
+
+def test_a_metric_at_lived_is_averaged_over_the_steps_lived_and_never_charges_a_fall():
+    """Issue 55: with every unlived step charged 1, `energy` mostly measured survival. `energy@lived` averages the
+    per-step cost over the steps lived, fallen or not (a fall is `fall`'s business); hand values: a 2-step episode
+    that fell with actions a^2 = 0.25 and 0.75, and a 4-step one cut off with a^2 = 0.5."""
+    obs = np.zeros((2, 4, 11))
+    act = np.zeros((2, 4, 3))
+    act[0, 0], act[0, 1], act[1] = 0.5, np.sqrt(0.75), np.sqrt(0.5)
+    ms = cost_metrics("hopper", "energy,energy@lived,fall")
+    assert [m.name for m in ms] == ["energy", "energy@lived", "fall"] and ms[1].not_lived is None
+    f = np.asarray(trajectory_costs(ms, obs, np.array([2, 4]), horizon=8, terminated=np.array([True, False]),
+                                    actions=act))
+    np.testing.assert_allclose(f, [[(0.25 + 0.75 + 6) / 8, (0.25 + 0.75) / 2, 6 / 8], [0.5, 0.5, 0.0]], rtol=1e-6)
+    for bad in ("fall@lived", "energy@horizon"):
+        with pytest.raises(ValueError, match="the only suffix is @lived"):
+            cost_metrics("hopper", bad)
+    assert metric("walker", "speed_band:2:3@lived").name == "speed_band:2:3@lived"

@@ -39,6 +39,7 @@ return at +0.74 to +0.92 (``experiments/results/cost_features.md``, ``python exp
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -61,7 +62,7 @@ class CostMetric:
     lo: float
     hi: float
     higher_is_better: bool = False
-    not_lived: float = 1.0
+    not_lived: float | None = 1.0  # None: averaged over the steps lived, a fall not charged (``NAME@lived``)
     uses_actions: bool = False
     meaning: str = ""
 
@@ -70,8 +71,8 @@ class CostMetric:
             raise ValueError(f"a cost metric needs a name without commas, got {self.name!r}")
         if not (np.isfinite(self.lo) and np.isfinite(self.hi) and self.lo < self.hi):
             raise ValueError(f"cost metric {self.name!r}: need finite lo < hi, got [{self.lo}, {self.hi}]")
-        if not 0.0 <= self.not_lived <= 1.0:
-            raise ValueError(f"cost metric {self.name!r}: not_lived must be in [0, 1], got {self.not_lived}")
+        if self.not_lived is not None and not 0.0 <= self.not_lived <= 1.0:
+            raise ValueError(f"cost metric {self.name!r}: not_lived must be in [0, 1] or None, got {self.not_lived}")
 
     def per_step(self, observations, actions):
         """``[..., obs]``, ``[..., act]`` -> per-step costs ``[...]`` in [0, 1]."""
@@ -147,8 +148,17 @@ def default_costs(env: str) -> tuple[str, ...]:
 
 
 def metric(env: str, name: str) -> CostMetric:
-    """The built-in metric ``name`` (``NAME`` or ``NAME:P1:P2``, e.g. ``speed_band:2:3``) for ``env``."""
-    base, *params = name.strip().split(":")
+    """The built-in metric ``name`` (``NAME`` or ``NAME:P1:P2``, e.g. ``speed_band:2:3``) for ``env``; with the
+    suffix ``@lived`` (``energy@lived``) averaged over the steps lived, a fall not charged (``fall`` charges it)."""
+    name, at, mode = name.strip().partition("@")
+    if at:
+        if mode != "lived" or name.split(":")[0] == "fall":
+            raise ValueError(f"cost metric {name}@{mode!r}: the only suffix is @lived (averaged over the steps lived), "
+                             f"and not for fall, which is the charge for the steps not lived")
+        m = metric(env, name)
+        return dataclasses.replace(m, name=m.name + "@lived", not_lived=None,
+                                   meaning=m.meaning + "; averaged over the steps lived, a fall not charged")
+    base, *params = name.split(":")
     if base not in METRICS:
         raise ValueError(f"unknown cost metric {name!r}; choose from {sorted(METRICS)}")
     try:
@@ -215,7 +225,7 @@ def trajectory_costs(metrics: Sequence[CostMetric], observations, lengths, horiz
         raise ValueError(f"cost metrics {[m.name for m in metrics if m.uses_actions]} need the actions")
     act = None if actions is None else jnp.asarray(actions)
     per_step = jnp.stack([m.per_step(obs, act) for m in metrics], axis=-1)
-    charge = jnp.asarray([m.not_lived for m in metrics], per_step.dtype)
+    charge = jnp.asarray([np.nan if m.not_lived is None else m.not_lived for m in metrics], per_step.dtype)
     return horizon_average(per_step, lengths, horizon, terminated, charge)
 
 
@@ -229,11 +239,12 @@ def engineered_costs(env: str, observations, lengths, horizon: int = 1000, *, te
 def horizon_average(per_step, lengths, horizon: int, terminated, charge=1.0):
     """Per-step costs ``[N, T, K]`` in [0, 1] -> ``[N, K]`` trajectory features (module docstring): averaged over
     the horizon with every step not lived charged ``charge`` (``[K]`` or a scalar; 1 = the worst cost) for a
-    terminated trajectory ``terminated [N]``, averaged over the steps lived for one cut off."""
+    terminated trajectory ``terminated [N]``, averaged over the steps lived for one cut off, and for every
+    trajectory in a metric whose charge is NaN (``@lived``)."""
     valid = (jnp.arange(per_step.shape[1])[None, :] < lengths[:, None])[..., None]
     lived = jnp.sum(jnp.where(valid, per_step, 0.0), axis=1)
     L = lengths[:, None].astype(per_step.dtype)
-    fell = jnp.asarray(terminated, bool)[:, None]
+    fell = jnp.asarray(terminated, bool)[:, None] & ~jnp.isnan(jnp.asarray(charge, per_step.dtype))
     return jnp.where(fell, (lived + charge * horizon - charge * L) / horizon, lived / jnp.maximum(L, 1.0))
 
 
