@@ -48,6 +48,19 @@ def fake_results(cfg):
     return res
 
 
+def recording_sweep(tmp_path):
+    """``(calls, kw)``: ``run_sweep`` keywords for hopper medium at smoke whose fake training records
+    ``(method, seed, seeds)`` in ``calls``."""
+    calls = []
+
+    def fake_train(cfg, resume=False, verbose=False):
+        calls.append((cfg.method, cfg.seed, cfg.seeds))
+        return fake_results(cfg)
+
+    return calls, dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
+                       results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+
+
 def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     """--whole-env: an env's datasets missing the same seeds of the same methods are one program (--dataset a,b);
     each model's file names its own dataset and holds its own evaluation."""
@@ -344,14 +357,7 @@ def test_a_result_trained_with_another_config_is_an_error_not_kept(table1, tmp_p
     it does not read, is kept and skipped."""
     from minsubdt_jax import config
 
-    calls = []
-
-    def fake_train(cfg, resume=False, verbose=False):
-        calls.append((cfg.method, cfg.seed, cfg.seeds))
-        return fake_results(cfg)
-
-    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
-              results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+    calls, kw = recording_sweep(tmp_path)
     table1.run_sweep(methods=("dt", "iql"), seeds=(0, 1), **kw)
     calls.clear()
     table1.run_sweep(methods=("dt", "iql"), seeds=(0, 1, 2), chunk_steps=5, **kw)  # another chunking: kept
@@ -372,14 +378,7 @@ def test_a_dt_result_of_an_earlier_model_revision_is_an_error_not_kept(table1, t
     """Issue 54: a DT-family result file from before the return-embedding fix (no ``dt_revision``: revision 1) would
     be kept as the sweep's result like a changed preset's: one error naming it, nothing trained; a critic agent's
     file of the same age is kept (its networks did not change)."""
-    calls = []
-
-    def fake_train(cfg, resume=False, verbose=False):
-        calls.append((cfg.method, cfg.seed, cfg.seeds))
-        return fake_results(cfg)
-
-    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
-              results_root=str(tmp_path / "res"), train_fn=fake_train, log=lambda *_: None)
+    calls, kw = recording_sweep(tmp_path)
     table1.run_sweep(methods=("dt", "iql"), seeds=(0,), **kw)
     res = tmp_path / "res" / "table1" / "smoke"
     for f in res.glob("*.json"):
