@@ -6,7 +6,10 @@ target samples, AWR 128 x 64 nets). BRAC-v and BEAR are timed in their main stag
 AWR by its 1200-step iteration (the lambda-returns of the 64k stored states, 200 value and 1000 policy steps).
 
     python benchmarks/bench_agents.py [--agents dt-cpu dt-paper bc-mlp iql td3bc cql brac bear] [--steps 50]
-                                      [--repeats 5] [--json benchmarks/results/agents.json]
+                                      [--repeats 5] [--precisions f32 bf16] [--json benchmarks/results/agents.json]
+
+``--precisions``: each agent (but BC with an MLP) at each matmul precision, ``<agent>@<precision>`` in the table
+(bf16: bfloat16 matmuls from float32 parameters; on a CPU without bf16 units it is no faster, the GPU's case).
 
 Each agent's jitted ``lax.scan`` chunk of ``--steps`` steps (the one training runs: sampling, forward, backward,
 updates; one seed) on a synthetic walker-shaped dataset (64 episodes x 1000 steps, 17-d states, 6-d actions).
@@ -43,10 +46,10 @@ AGENTS = {"dt-cpu": ("dt", "cpu"), "dt-paper": ("dt", "paper"), "bc-mlp": ("mlp"
 AWR_ITERATION = 1200  # AWR's chunk is one iteration (lambda-returns of the dataset, value and policy steps)
 
 
-def make_chunk(name: str, steps: int, data):
+def make_chunk(name: str, steps: int, data, precision: str = "f32"):
     agent_name, preset = AGENTS[name]
     steps = AWR_ITERATION if agent_name == "awr" else steps
-    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0, steps=1_000_000)
+    cfg = dataclasses.replace(PRESETS[preset], chunk_steps=steps, eval_every=0, steps=1_000_000, precision=precision)
     agent = make_agent(agent_name, cfg, 17, 6, 1000)
     tx = optimizer_for(agent, cfg)
     batch = batch_size_of(agent_name, cfg)
@@ -70,13 +73,16 @@ def main(argv=None) -> int:
     p.add_argument("--agents", nargs="+", default=list(AGENTS), choices=list(AGENTS))
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--precisions", nargs="+", default=["f32"], choices=["f32", "tf32", "bf16"])
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
     ds = synthetic_dataset()
     mean, std = ds.state_stats()
     data = sampler_data(ds, ds.rewards, mean, std)
-    runs = {n: make_chunk(n, a.steps, data) for n in a.agents}
-    times = {n: [] for n in a.agents}
+    names = [n if p == "f32" else f"{n}@{p}" for p in a.precisions for n in a.agents
+             if p == "f32" or AGENTS[n][0] != "mlp"]
+    runs = {n: make_chunk(n.split("@")[0], a.steps, data, (n.split("@") + ["f32"])[1]) for n in names}
+    times = {n: [] for n in names}
     for _ in range(a.repeats):
         for n, (run, _, _, steps) in runs.items():
             t0 = time.perf_counter()
@@ -84,7 +90,7 @@ def main(argv=None) -> int:
             times[n].append((time.perf_counter() - t0) / steps)
     ref = times.get("dt-cpu")
     rows = []
-    for n in a.agents:
+    for n in names:
         ms = 1e3 * statistics.median(times[n])
         rel = statistics.median(t / r for t, r in zip(times[n], ref)) if ref else float("nan")
         rows.append({"agent": n, "batch": runs[n][2], "ms_per_step": ms, "steps_per_s": 1e3 / ms,

@@ -70,8 +70,8 @@ class Config:
     warmup_steps: int = 10000  # linear warm-up of the learning rate over these steps
     grad_clip: float = 0.25  # global-norm gradient clip
     batch_size: int = 64  # sequences per gradient step (split over --devices)
-    # matmul precision of the DT: f32 | tf32 (TF32 matmuls on GPUs that have them; the same as f32 on a CPU) |
-    # bf16 (bfloat16 matmuls; parameters, optimiser, LayerNorms and the loss stay float32)
+    # matmul precision of the DT and the critic agents: f32 | tf32 (TF32 matmuls on GPUs that have them; the same as
+    # f32 on a CPU) | bf16 (bfloat16 matmuls; parameters, optimiser, LayerNorms, network outputs and losses float32)
     precision: str = "f32"
     # after the warm-up: constant (DT paper) | cosine (decays to 0 at --steps, as IQL's actor; --steps is then fixed)
     lr_schedule: str = "constant"
@@ -226,9 +226,9 @@ def validate(cfg: Config) -> Config:
         raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
     if cfg.embed_dim % cfg.n_heads:
         raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
-    if cfg.precision != "f32" and agents != {"dt"}:
-        raise ValueError(f"--precision {cfg.precision} is for the DT agent; --method {cfg.method} trains the "
-                         f"{agents.pop()} agent")
+    if cfg.precision != "f32" and "mlp" in agents:
+        raise ValueError(f"--precision {cfg.precision} is for the DT and the critic agents; --method {cfg.method} "
+                         f"trains the MLP agent")
     for name in ("ac_hidden", "ac_layers", "actor_lr", "critic_lr"):
         if getattr(cfg, name) is not None and not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")

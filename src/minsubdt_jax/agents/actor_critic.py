@@ -111,7 +111,13 @@ class CriticAgentBase:
     batch_size: int
     actor_lr: float
     critic_lr: float
+    precision: str = "f32"  # f32 | tf32 (TF32 matmuls where the device has them) | bf16 (bfloat16 matmuls)
     context_len: ClassVar[int] = 1  # the shared interface's window; critic agents sample transitions
+
+    @property
+    def dtype(self):
+        """The networks' matmul dtype: bfloat16 at ``--precision bf16``, else float32 (None)."""
+        return jnp.bfloat16 if self.precision == "bf16" else None
 
     def initial_carry(self, n: int):
         return ()
@@ -124,7 +130,11 @@ class CriticAgentBase:
 
     def loss(self, params, batch, rng, step=None):
         """``(total, parts)``: the agent's ``losses(params, batch, rng, step)`` (a dict) and their sum."""
-        parts = self.losses(params, batch, rng, step)
+        if self.precision == "tf32":  # read when the step is traced
+            with jax.default_matmul_precision("tensorfloat32"):
+                parts = self.losses(params, batch, rng, step)
+        else:
+            parts = self.losses(params, batch, rng, step)
         return sum(parts.values()), parts
 
     def targets(self, step):
@@ -156,4 +166,4 @@ def critic_fields(cfg, obs_dim: int, act_dim: int, layers: int, actor_lr: float,
     ``actor_lr`` and ``critic_lr`` where ``--ac-layers``, ``--ac-hidden``, ``--actor-lr``, ``--critic-lr`` are unset."""
     return dict(obs_dim=obs_dim, act_dim=act_dim, hidden=(cfg.ac_hidden or hidden,) * (cfg.ac_layers or layers),
                 discount=cfg.discount, tau=cfg.tau, batch_size=cfg.critic_batch_size,
-                actor_lr=cfg.actor_lr or actor_lr, critic_lr=cfg.critic_lr or critic_lr)
+                actor_lr=cfg.actor_lr or actor_lr, critic_lr=cfg.critic_lr or critic_lr, precision=cfg.precision)

@@ -2,11 +2,12 @@
 ensemble of Q-functions, a state-value net, and three actors: deterministic (TD3+BC), a Gaussian with a tanh on
 its mean and a state-independent log-std (IQL's ``NormalTanhPolicy`` without a squashed distribution), and a
 tanh-squashed Gaussian with a state-dependent log-std (SAC, CQL). Inputs are normalised states ``[B, obs]`` and
-actions in ``[-1, 1]``; the leading dimensions may be anything."""
+actions in ``[-1, 1]``; the leading dimensions may be anything. ``dtype`` (``--precision bf16``: bfloat16) is the
+dtype of their matmuls; parameters stay float32 and every output is float32, so losses are computed in float32."""
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import flax.linen as nn
 import jax
@@ -15,14 +16,20 @@ import jax.numpy as jnp
 from ..behavior.networks import MLP
 
 
+def f32(x):
+    return x.astype(jnp.float32)
+
+
 class Critic(nn.Module):
     """``(states [..., obs], actions [..., act]) -> Q [...]``."""
 
     hidden: Sequence[int]
+    dtype: Any = None
 
     @nn.compact
     def __call__(self, states, actions):
-        return nn.Dense(1)(MLP(self.hidden)(jnp.concatenate([states, actions], -1)))[..., 0]
+        h = MLP(self.hidden, self.dtype)(jnp.concatenate([states, actions], -1))
+        return f32(nn.Dense(1, dtype=self.dtype)(h))[..., 0]
 
 
 class Critics(nn.Module):
@@ -30,22 +37,24 @@ class Critics(nn.Module):
 
     hidden: Sequence[int]
     num: int = 2
+    dtype: Any = None
 
     @nn.compact
     def __call__(self, states, actions):
         ensemble = nn.vmap(Critic, variable_axes={"params": 0}, split_rngs={"params": True}, in_axes=None,
                            out_axes=0, axis_size=self.num)
-        return ensemble(self.hidden)(states, actions)
+        return ensemble(self.hidden, self.dtype)(states, actions)
 
 
 class Value(nn.Module):
     """``states [..., obs] -> V [...]``."""
 
     hidden: Sequence[int]
+    dtype: Any = None
 
     @nn.compact
     def __call__(self, states):
-        return nn.Dense(1)(MLP(self.hidden)(states))[..., 0]
+        return f32(nn.Dense(1, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states)))[..., 0]
 
 
 class DeterministicActor(nn.Module):
@@ -53,10 +62,11 @@ class DeterministicActor(nn.Module):
 
     act_dim: int
     hidden: Sequence[int]
+    dtype: Any = None
 
     @nn.compact
     def __call__(self, states):
-        return jnp.tanh(nn.Dense(self.act_dim)(MLP(self.hidden)(states)))
+        return jnp.tanh(f32(nn.Dense(self.act_dim, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states))))
 
 
 def gaussian_log_prob(x, mean, log_std):
@@ -70,10 +80,11 @@ class TanhMeanGaussianActor(nn.Module):
 
     act_dim: int
     hidden: Sequence[int]
+    dtype: Any = None
 
     @nn.compact
     def __call__(self, states):
-        mean = jnp.tanh(nn.Dense(self.act_dim)(MLP(self.hidden)(states)))
+        mean = jnp.tanh(f32(nn.Dense(self.act_dim, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states))))
         log_std = self.param("log_std", nn.initializers.zeros, (self.act_dim,))
         return mean, jnp.broadcast_to(jnp.clip(log_std, -5.0, 2.0), mean.shape)
 
@@ -86,10 +97,11 @@ class TanhGaussianActor(nn.Module):
     act_dim: int
     hidden: Sequence[int]
     log_std_range: tuple | None = None
+    dtype: Any = None
 
     @nn.compact
     def __call__(self, states):
-        out = nn.Dense(2 * self.act_dim)(MLP(self.hidden)(states))
+        out = f32(nn.Dense(2 * self.act_dim, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states)))
         mean, raw = out[..., :self.act_dim], out[..., self.act_dim:]
         if self.log_std_range is not None:
             lo, hi = self.log_std_range

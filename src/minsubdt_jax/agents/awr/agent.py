@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -35,10 +36,11 @@ class Net(nn.Module):
 
     out: int
     hidden: tuple = (128, 64)
+    dtype: Any = None  # the matmuls' (--precision bf16); parameters and output float32
 
     @nn.compact
     def __call__(self, states):
-        return nn.Dense(self.out)(MLP(self.hidden)(states))
+        return nn.Dense(self.out, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states)).astype(jnp.float32)
 
 
 @dataclass(frozen=True)
@@ -50,7 +52,7 @@ class AWRAgent(CriticAgentBase):
 
     @property
     def networks(self):
-        return Net(self.act_dim, self.hidden), Net(1, self.hidden)
+        return Net(self.act_dim, self.hidden, self.dtype), Net(1, self.hidden, self.dtype)
 
     def init_params(self, key):
         actor, value = self.networks
@@ -136,4 +138,5 @@ def awr_policy(actor: Net):
 def make_awr_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> AWRAgent:
     return AWRAgent(obs_dim=obs_dim, act_dim=act_dim, hidden=(cfg.ac_hidden or 128, 64) if cfg.ac_layers in (None, 2)
                     else (cfg.ac_hidden or 128,) * cfg.ac_layers, discount=cfg.discount, tau=cfg.tau,
-                    batch_size=cfg.critic_batch_size, actor_lr=cfg.actor_lr or 5e-5, critic_lr=cfg.critic_lr or 1e-2)
+                    batch_size=cfg.critic_batch_size, actor_lr=cfg.actor_lr or 5e-5, critic_lr=cfg.critic_lr or 1e-2,
+                    precision=cfg.precision)

@@ -39,7 +39,8 @@ class BEARAgent(CriticAgentBase):
 
     @property
     def networks(self):
-        return TanhGaussianActor(self.act_dim, self.hidden), Critics(self.hidden), VAE(self.act_dim, self.vae_hidden)
+        return (TanhGaussianActor(self.act_dim, self.hidden, dtype=self.dtype), Critics(self.hidden, dtype=self.dtype),
+                VAE(self.act_dim, self.vae_hidden, self.dtype))
 
     def init_params(self, key):
         actor, critic, vae = self.networks

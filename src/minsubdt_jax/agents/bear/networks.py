@@ -4,13 +4,14 @@ policies.py``, ``VAEPolicy``): 750 x 750 encoder and decoder, latent dimension 2
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
 from ...behavior.networks import MLP
+from ..critic_networks import f32
 
 
 class VAE(nn.Module):
@@ -18,22 +19,23 @@ class VAE(nn.Module):
 
     act_dim: int
     hidden: Sequence[int] = (750, 750)
+    dtype: Any = None  # the matmuls' (--precision bf16); parameters and outputs float32
 
     def setup(self):
-        self.encoder = MLP(self.hidden)
-        self.enc_mean = nn.Dense(2 * self.act_dim)
-        self.enc_log_std = nn.Dense(2 * self.act_dim)
-        self.decoder = MLP(self.hidden)
-        self.dec_out = nn.Dense(self.act_dim)
+        self.encoder = MLP(self.hidden, self.dtype)
+        self.enc_mean = nn.Dense(2 * self.act_dim, dtype=self.dtype)
+        self.enc_log_std = nn.Dense(2 * self.act_dim, dtype=self.dtype)
+        self.decoder = MLP(self.hidden, self.dtype)
+        self.dec_out = nn.Dense(self.act_dim, dtype=self.dtype)
 
     def __call__(self, states, actions, rng):
         h = self.encoder(jnp.concatenate([states, actions], -1))
-        mean, std = self.enc_mean(h), jnp.exp(jnp.clip(self.enc_log_std(h), -4.0, 15.0))
+        mean, std = f32(self.enc_mean(h)), jnp.exp(jnp.clip(f32(self.enc_log_std(h)), -4.0, 15.0))
         z = mean + std * jax.random.normal(rng, mean.shape)
         return self.decode(states, z)[0], mean, std
 
     def decode(self, states, z):
-        pre_tanh = self.dec_out(self.decoder(jnp.concatenate([states, z], -1)))
+        pre_tanh = f32(self.dec_out(self.decoder(jnp.concatenate([states, z], -1))))
         return jnp.tanh(pre_tanh), pre_tanh
 
 

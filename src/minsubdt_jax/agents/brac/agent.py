@@ -42,8 +42,9 @@ class BRACAgent(CriticAgentBase):
 
     @property
     def networks(self):
-        return (TanhGaussianActor(self.act_dim, self.policy_hidden, LOG_STD_RANGE), Critics(self.hidden),
-                TanhGaussianActor(self.act_dim, self.policy_hidden, LOG_STD_RANGE))
+        return (TanhGaussianActor(self.act_dim, self.policy_hidden, LOG_STD_RANGE, self.dtype),
+                Critics(self.hidden, dtype=self.dtype), TanhGaussianActor(self.act_dim, self.policy_hidden, LOG_STD_RANGE,
+                                                                          self.dtype))
 
     def init_params(self, key):
         actor, critic, behavior = self.networks

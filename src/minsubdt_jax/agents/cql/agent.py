@@ -23,7 +23,7 @@ class CQLAgent(CriticAgentBase):
 
     @property
     def networks(self):
-        return TanhGaussianActor(self.act_dim, self.hidden), Critics(self.hidden)
+        return TanhGaussianActor(self.act_dim, self.hidden, dtype=self.dtype), Critics(self.hidden, dtype=self.dtype)
 
     def init_params(self, key):
         params = self._init(key, *self.networks)

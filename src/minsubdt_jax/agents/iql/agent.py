@@ -23,7 +23,8 @@ class IQLAgent(CriticAgentBase):
 
     @property
     def networks(self):
-        return (TanhMeanGaussianActor(self.act_dim, self.hidden), Critics(self.hidden), Value(self.hidden))
+        return (TanhMeanGaussianActor(self.act_dim, self.hidden, self.dtype), Critics(self.hidden, dtype=self.dtype),
+                Value(self.hidden, self.dtype))
 
     def init_params(self, key):
         actor, critic, value = self.networks

@@ -24,7 +24,7 @@ class TD3BCAgent(CriticAgentBase):
 
     @property
     def networks(self):
-        return DeterministicActor(self.act_dim, self.hidden), Critics(self.hidden)
+        return DeterministicActor(self.act_dim, self.hidden, self.dtype), Critics(self.hidden, dtype=self.dtype)
 
     def init_params(self, key):
         params = self._init(key, *self.networks)
