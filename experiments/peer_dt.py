@@ -177,6 +177,7 @@ def run(a) -> dict:
 def time_steps(a) -> dict:
     """Seconds per training step of both DTs at ``--preset``, one model each, one after the other on this machine:
     d3rlpy's ``update`` (with its batch sampling) and our jitted step (sampling included, ``lax.scan`` chunks)."""
+    import d3rlpy
     import jax
     import torch
 
@@ -189,7 +190,7 @@ def time_steps(a) -> dict:
     buffer = d3rlpy_dataset(d)
     algo = d3rlpy_config(cfg).create(device="cpu:0")
     algo.fit(buffer, n_steps=20, n_steps_per_epoch=20, show_progress=False, save_interval=10**9,
-             experiment_name="peer-dt-time", logger_adapter=__import__("d3rlpy").logging.NoopAdapterFactory())
+             experiment_name="peer-dt-time", logger_adapter=d3rlpy.logging.NoopAdapterFactory())
     t0 = time.perf_counter()
     for _ in range(a.steps):
         algo.update(buffer.sample_trajectory_batch(cfg.batch_size, length=cfg.context_len))
