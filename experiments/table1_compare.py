@@ -22,7 +22,18 @@ def summary(out: dict) -> dict:
     return {"table": {k: {m: v[m]["mean"] for m in METHODS if m in v} for k, v in out["table"].items()},
             "averages": {k: {m: v[m]["mean"] for m in METHODS} for k, v in out["averages"].items()},
             "versus_dt": {k: {m: v[m]["verdict"] for m in MINSUBDT_COLUMNS if m in v}
-                          for k, v in out["versus_dt"].items()}}
+                          for k, v in out["versus_dt"].items()},
+            "dataset_score": dict(out["dataset_score"])}
+
+
+def beats(table: dict, data: dict, m: str) -> tuple[int, int, int]:
+    """``(above the data, above BC, cells)``: in how many cells with a mean of column ``m`` it is above the dataset's
+    own score and above BC's mean (cells that have both)."""
+    cells = [k for k, v in table.items() if m in v]
+    mean = lambda v: v if isinstance(v, (int, float)) else v["mean"]  # noqa: E731  (a summary keeps the mean)
+    above_data = sum(data.get(k) is not None and mean(table[k][m]) > data[k] for k in cells)
+    above_bc = sum("bc" in table[k] and mean(table[k][m]) > mean(table[k]["bc"]) for k in cells)
+    return above_data, above_bc, len(cells)
 
 
 def markdown(out: dict) -> str:
@@ -61,4 +72,9 @@ def markdown(out: dict) -> str:
             was, now = old["versus_dt"].get(f"{d}/{e}", {}), out["versus_dt"].get(f"{d}/{e}", {})
             lines.append(f"| {d} | {e} | " + " | ".join(
                 f"{was.get(m, '–')} → {now[m]['verdict'] if m in now else '–'}" for m in MINSUBDT_COLUMNS) + " |")
+    lines.append("")
+    for m in MINSUBDT_COLUMNS:
+        was, now = beats(old["table"], old["dataset_score"], m), beats(out["table"], out["dataset_score"], m)
+        lines.append(f"{METHOD_NAMES[m]}: above the data in {now[0]} of {now[2]} cells, above BC in {now[1]} "
+                     f"(earlier: {was[0]} and {was[1]} of {was[2]}).")
     return "\n".join(lines) + "\n"

@@ -414,3 +414,5 @@ def test_report_puts_the_table_before_the_dt_fix_beside_todays(table1, tmp_path)
     assert f"| medium | hopper | {BASE['minsubdt'] + 0.5:.1f} → {BASE['minsubdt'] + 0.5:.1f} (+0.0) | – | " \
            f"{BASE['dt'] - 6.5:.1f} → {BASE['dt'] + 0.5:.1f} (+7.0) | – |" in md
     assert "| medium | hopper | behind → behind | – → – |" in md  # MinSubDT below DT in both tables
+    # the fake data scores 45.0: MinSubDT (50.5) is above it in the one cell of each table; no BC column was trained
+    assert "MinSubDT (engg. costs): above the data in 1 of 1 cells, above BC in 0 (earlier: 1 and 0 of 1)." in md
