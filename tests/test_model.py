@@ -169,8 +169,6 @@ def test_the_trained_dt_takes_the_action_of_the_return_it_is_conditioned_on():
     conditioned on target 3, takes > +0.3 at every step of every episode, and on target 1 < -0.3 (each episode feeding
     back its own actions). Measured: |a| >= 0.50 with the torch-style return embedding; flax's zero-bias one leans
     on the state cue and takes the other group's action in some episode of every seed."""
-    import dataclasses
-
     from minsubdt_jax.agents import make_agent
     from minsubdt_jax.agents.base import PolicyInputs, init_seed_states, make_optimizer, make_train_chunk
     from minsubdt_jax.config import PRESETS
