@@ -70,7 +70,8 @@ def test_written_files_respect_the_umask(tmp_path, umask, mode):
     assert os.stat(tmp_path / "f.json").st_mode & 0o777 == mode
 
 
-def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_path, small_dataset_path, capsys):
+def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_path, small_dataset_path, capsys,
+                                                                           monkeypatch):
     """Ctrl-C used to print a 42-line traceback. During training it finishes the current chunk and its checkpoint,
     then stops with one line that gives the resume command (exit 130, no results.json); that command finishes the
     run. The key press itself is acknowledged at once (the chunk may take minutes). Here the SIGINT arrives while the first of two 10-step chunks is being logged."""
@@ -78,8 +79,16 @@ def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_
     from minsubdt_jax.rundir import Interrupted, exit_code
     from minsubdt_jax.train import main, train
 
+    from minsubdt_jax import train as train_module
+
     out = tmp_path / "run"
     cfg, _ = parse_args([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "1"])
+    moves = []
+
+    class Bar:  # the progress bar: it moves within a chunk (10 pieces of 1 step in the smoke preset's chunk of 10)
+        def __getattr__(self, name):
+            return moves.append if name == "update" else (lambda *a, **k: None)
+    monkeypatch.setattr(train_module, "progress", lambda **_: Bar())
 
     def ctrl_c(step, record):
         if "loss" in record and step == 10:
@@ -89,7 +98,7 @@ def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_
                                           r".*config\.json --resume") as e:
         train(cfg, verbose=False, progress_fn=ctrl_c)
     assert sorted(d for d in os.listdir(out / "checkpoints") if d.isdigit()) == ["10"]
-    assert not (out / "results.json").exists()
+    assert not (out / "results.json").exists() and moves == [1] * 10
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is given back
     assert "Ctrl-C: stopping after this chunk's checkpoint" in capsys.readouterr().err  # said when pressed
 
@@ -310,3 +319,40 @@ def test_a_failed_write_leaves_no_file_and_is_one_line(tmp_path, monkeypatch, ca
     err = capsys.readouterr().err
     assert err == f"error: No space left on device: {target}\n"
     assert sorted(os.listdir(tmp_path)) == ["results.json"] and target.read_text() == '{"old": 1}'
+
+
+def test_the_progress_bar_moves_within_a_chunk_and_the_pieces_train_the_same_steps():
+    """The bar moved once per chunk (the `cpu` preset's first update came after minutes). A chunk now runs as ~10
+    dispatches of a tenth of it, and the bar moves after each; the pieces are the same steps as one scan (the state
+    carries the rng and the step): the parameters are identical bit for bit, here DT over 20 steps as one scan and as
+    ten of 2. AWR's chunk (one iteration, not a scan of steps) stays whole."""
+    import dataclasses
+
+    import jax
+    import numpy as np
+
+    from minsubdt_jax.agents import make_agent
+    from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk, merge_losses, piece_steps
+    from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.data import Trajectories, sampler_data
+
+    assert [piece_steps(n, False) for n in (500, 2000, 10, 7, 1)] == [50, 200, 1, 1, 1]
+    assert piece_steps(1200, True) == 1200
+    rng = np.random.default_rng(0)
+    n, T, obs, act = 8, 30, 11, 3
+    ds = Trajectories(rng.normal(size=(n, T, obs)).astype(np.float32), rng.uniform(-1, 1, (n, T, act)).astype(np.float32),
+                      np.zeros((n, T), np.float32), np.full(n, T, np.int32), np.zeros(n, bool))
+    data = sampler_data(ds, rng.normal(size=(n, T)), np.zeros(obs, np.float32), np.ones(obs, np.float32))
+    cfg = dataclasses.replace(PRESETS["smoke"], ema_decay=0.9)
+    agent, tx = make_agent("dt", cfg, obs, act, T), make_optimizer(cfg)
+    whole, losses = make_train_chunk(agent, tx, 8, 20, ema_decay=0.9)(init_state(agent, tx, jax.random.PRNGKey(0),
+                                                                                  ema=True), data)
+    piece, state, pieces = make_train_chunk(agent, tx, 8, 2, ema_decay=0.9), init_state(agent, tx, jax.random.PRNGKey(0),
+                                                                                        ema=True), []
+    for _ in range(10):
+        state, out = piece(state, data)
+        pieces.append(out)
+    joined, _ = merge_losses(pieces)
+    assert np.array_equal(np.asarray(joined), np.asarray(losses))
+    for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(state)):
+        assert np.array_equal(np.asarray(a), np.asarray(b))

@@ -15,9 +15,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .agents.base import PolicyInputs
+from .agents.dt.agent import train_step_bytes
 from .costs import cost_metrics
 from .evaluation import evaluate_policy
-from .parallel import replicate
+from .parallel import available_bytes, replicate
 from .pipeline import Prepared
 
 PER_MODEL_FIELDS = ("returns_to_go", "rewards", "last_done")  # what a method's data changes: its rewards
@@ -113,3 +114,15 @@ def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
         rec[f"eval_{key}"] = [e[f"{key}_mean"] for e in per_seed]
         rec[f"eval_{key}_std"] = [e[f"{key}_std"] for e in per_seed]
     return rec
+
+
+def check_memory(cfg, agent: str, n_models: int, n_devices: int) -> None:
+    """A DT configuration whose train step cannot fit in memory (a long context, a huge batch) is one error here,
+    before anything is written, not an out-of-memory kill without a message (:func:`train_step_bytes`)."""
+    have = available_bytes()
+    need = train_step_bytes(cfg, n_models) / n_devices if agent == "dt" else 0
+    if have is not None and need > have:
+        raise ValueError(f"one train step of {n_models} model(s) at --context-len {cfg.context_len}, --batch-size "
+                         f"{cfg.batch_size}, --embed-dim {cfg.embed_dim}, --n-layers {cfg.n_layers} needs ~"
+                         f"{need / 2 ** 30:.1f} GiB per device, more than the {have / 2 ** 30:.1f} GiB available: "
+                         f"lower --context-len or --batch-size (or train fewer models per program)")

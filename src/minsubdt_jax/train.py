@@ -36,8 +36,8 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from .agents import FIXED_STEPS, batch_size_of, make_agent
-from .agents.base import eval_params, init_seed_states, make_train_chunk, optimizer_for
-from .agents.dt.agent import train_step_bytes
+from .agents.base import (eval_params, init_seed_states, make_train_chunk, merge_losses, optimizer_for,
+                          piece_steps)
 from .agents.dt.networks import DT_REVISION
 from .caches import enable_compilation_cache
 from .config import Config, parse_args, validate
@@ -47,10 +47,10 @@ from .envs import physics_record, resolve_physics
 from .evaluation import across_seeds
 from .loggers import Loggers, logger_names
 from .methods import get_method
-from .parallel import (assert_same_across_processes, available_bytes, gather, init_distributed, is_main_process,
-                       make_mesh, replicate)
+from .parallel import (assert_same_across_processes, gather, init_distributed, is_main_process, make_mesh,
+                       replicate)
 from .pipeline import load, prepare
-from .program import eval_record, evaluate_models, stack_models
+from .program import check_memory, eval_record, evaluate_models, stack_models
 from .references import REFERENCE_SOURCES, references_record
 from .rundir import (DATASET_FILE, METRICS_FILE, InterruptFlag, Interrupted, RunLock, check_run_dir, check_same_data,
                      check_same_metrics, exit_code, json_text, plot_learning_curve, progress, truncate_metrics,
@@ -188,14 +188,19 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     try:  # an interruption (Ctrl-C, an error, a progress_fn that stops the run) still completes the last checkpoint
         while step < cfg.steps:
             n = min(cfg.chunk_steps, cfg.steps - step)
-            if n not in chunks:
+            m = piece_steps(n, hasattr(agent, "make_chunk"))
+            if m not in chunks:
                 if verbose and not chunks:
                     bar.write("compiling the train step (the first chunk waits for it) ...")
-                chunks[n] = make_train_chunk(agent, tx, batch_size, n, mesh, seed_axis=True, data_axis=data_axis,
+                chunks[m] = make_train_chunk(agent, tx, batch_size, m, mesh, seed_axis=True, data_axis=data_axis,
                                              ema_decay=cfg.ema_decay)
             tc = time.time()
-            state, losses = chunks[n](state, data)
-            losses, parts = losses if isinstance(losses, tuple) else (losses, {})  # a critic agent's losses by name
+            pieces = []
+            for _ in range(n // m):  # the same steps as one scan of n (the state carries rng and step); the bar moves
+                state, piece = chunks[m](state, data)
+                pieces.append(jax.block_until_ready(piece))
+                bar.update(m)
+            losses, parts = merge_losses(pieces)  # [n, S]; a critic agent's losses by name beside
             per_seed = np.asarray(gather(losses)).mean(0)  # [S]
             if not np.isfinite(per_seed).all():
                 last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
@@ -215,7 +220,6 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
                 log(rec)
             mngr.save(step, args=ocp.args.StandardSave(state))
             bar.set_postfix(loss=f"{per_seed.mean():.4f}")
-            bar.update(n)
             if stop.raised and step < cfg.steps:
                 raise Interrupted(f"stopped after the checkpoint at step {step} of {cfg.steps}; resume with: python "
                                   f"-m minsubdt_jax.train --config {os.path.join(out, 'config.json')} --resume")
@@ -275,18 +279,6 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
     if verbose:
         print(f"wrote {out}/results.json", flush=True)
     return results
-
-
-def check_memory(cfg: Config, agent: str, n_models: int, n_devices: int) -> None:
-    """A DT configuration whose train step cannot fit in memory (a long context, a huge batch) is one error here,
-    before anything is written, not an out-of-memory kill without a message (:func:`train_step_bytes`)."""
-    have = available_bytes()
-    need = train_step_bytes(cfg, n_models) / n_devices if agent == "dt" else 0
-    if have is not None and need > have:
-        raise ValueError(f"one train step of {n_models} model(s) at --context-len {cfg.context_len}, --batch-size "
-                         f"{cfg.batch_size}, --embed-dim {cfg.embed_dim}, --n-layers {cfg.n_layers} needs ~"
-                         f"{need / 2 ** 30:.1f} GiB per device, more than the {have / 2 ** 30:.1f} GiB available: "
-                         f"lower --context-len or --batch-size (or train fewer models per program)")
 
 
 def platform() -> dict:

@@ -160,3 +160,17 @@ def init_seed_states(agent: Agent, tx, seeds, ema: bool = False) -> TrainState:
     seed s starts exactly where a single-seed run with ``--seed s`` does)."""
     keys = jnp.stack([jax.random.PRNGKey(s) for s in seeds])
     return jax.jit(jax.vmap(lambda k: init_state(agent, tx, k, ema)))(keys)
+
+
+def piece_steps(n: int, whole: bool) -> int:
+    """Steps per dispatch within a chunk of ``n``: about a tenth of it, a divisor (one program per chunk length), so
+    the progress bar moves within a chunk; the whole chunk where it is not a scan of steps (AWR's iteration)."""
+    return n if whole else max(d for d in range(1, max(n // 10, 1) + 1) if n % d == 0)
+
+
+def merge_losses(pieces: list) -> tuple:
+    """The pieces' losses ``[m, S]`` (or ``(losses, {name: [m, S]})``) joined: ``(losses [n, S], parts)``."""
+    if not isinstance(pieces[0], tuple):
+        return jnp.concatenate(pieces), {}
+    return (jnp.concatenate([p[0] for p in pieces]),
+            {k: jnp.concatenate([p[1][k] for p in pieces]) for k in pieces[0][1]})
