@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import os
 import subprocess
 import sys
@@ -44,11 +43,8 @@ def _cfg(a):
 
 def _lr_factor(cfg, step: int) -> float:
     """Our schedule (``agents.base.learning_rate``) over its peak, at 0-based ``step``."""
-    warm = min((step + 1) / cfg.warmup_steps, 1.0)
-    if cfg.lr_schedule == "constant":
-        return warm
-    frac = min(max((step - cfg.warmup_steps) / max(cfg.steps - cfg.warmup_steps, 1), 0.0), 1.0)
-    return warm * 0.5 * (1.0 + math.cos(math.pi * frac))
+    from minsubdt_jax.agents.base import learning_rate
+    return float(learning_rate(cfg, step)) / cfg.learning_rate
 
 
 def d3rlpy_config(cfg):
@@ -93,13 +89,15 @@ def train_d3rlpy(cfg, buffer, seed: int):
     """d3rlpy's DT trained for ``cfg.steps`` with our EMA; returns ``(algo, ema_state_dict, seconds)``."""
     import d3rlpy
     import torch
+
+    from minsubdt_jax.agents.base import ema_decay_at
     d3rlpy.seed(seed)
     algo = d3rlpy_config(cfg).create(device="cpu:0")
     ema = {}
 
     def average(algo, epoch, total_step):
         t = total_step - 1  # the 0-based step just taken
-        d = min(cfg.ema_decay, (1.0 + t) / (10.0 + t)) if cfg.ema_decay else 0.0
+        d = float(ema_decay_at(t, cfg.ema_decay)) if cfg.ema_decay else 0.0  # ours, per step
         with torch.no_grad():
             for k, v in algo.impl.modules.transformer.state_dict().items():
                 ema[k] = v.detach().clone() if k not in ema or not v.is_floating_point() else d * ema[k] + (1 - d) * v
@@ -196,8 +194,7 @@ def time_steps(a) -> dict:
         algo.update(buffer.sample_trajectory_batch(cfg.batch_size, length=cfg.context_len))
     peer = (time.perf_counter() - t0) / a.steps
     agent, tx = make_dt_agent(cfg, d.observations.shape[-1], d.actions.shape[-1], cfg.episode_length), make_optimizer(cfg)
-    mean, std = d.observations[d.valid_mask()].mean(0), d.observations[d.valid_mask()].std(0) + 1e-6
-    data = sampler_data(d, d.rewards, mean, std)
+    data = sampler_data(d, d.rewards, *d.state_stats())
     chunk = make_train_chunk(agent, tx, cfg.batch_size, a.steps)
     state = jax.block_until_ready(chunk(init_state(agent, tx, jax.random.PRNGKey(0)), data)[0])  # compile
     t0 = time.perf_counter()

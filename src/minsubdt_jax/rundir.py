@@ -164,9 +164,15 @@ def write_atomic(path: str, text: str) -> None:
 
 
 def current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    """The process's umask, read from /proc (Linux) so that no other thread ever sees it changed; elsewhere set
+    and restored at once."""
+    try:
+        with open("/proc/self/status") as f:
+            return next(int(line.split()[1], 8) for line in f if line.startswith("Umask:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        mask = os.umask(0)
+        os.umask(mask)
+        return mask
 
 
 def read_metrics(path: str) -> list[dict]:

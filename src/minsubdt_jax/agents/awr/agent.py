@@ -27,6 +27,7 @@ import optax
 from ...behavior.networks import MLP
 from ...data import draw_episodes
 from ..actor_critic import CriticAgentBase
+from ..critic_networks import f32
 from ..base import PolicyInputs, TrainState, ema_update
 from .losses import actor_loss, advantage_weights, lambda_returns
 
@@ -40,7 +41,7 @@ class Net(nn.Module):
 
     @nn.compact
     def __call__(self, states):
-        return nn.Dense(self.out, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states)).astype(jnp.float32)
+        return f32(nn.Dense(self.out, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states)))
 
 
 @dataclass(frozen=True)
