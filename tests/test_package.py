@@ -85,9 +85,11 @@ def test_imports_have_no_cycle_and_only_the_top_imports_agents():
     for m in edges:
         visit(m, [])
     assert "minsubdt_jax.references" in edges["minsubdt_jax.evaluation"]
-    # below the agents nothing imports them (only the run layer: the loop and its program's models); recording a
+    # below the agents nothing imports them (only the run layer: the loop, its program's models, a run evaluated
+    # again at a target of one's choosing); recording a
     # dataset does not load the SAC trainer
     users = {m for m, deps in graph.items() if any(d.startswith("minsubdt_jax.agents") for d in deps)}
     assert {u for u in users if not u.startswith("minsubdt_jax.agents")} == {"minsubdt_jax.train",
-                                                                            "minsubdt_jax.program"}
+                                                                            "minsubdt_jax.program",
+                                                                            "minsubdt_jax.evaluate"}
     assert not any(d.startswith("minsubdt_jax.behavior.train") for d in graph["minsubdt_jax.data.named"])

@@ -197,6 +197,9 @@ def validate(cfg: Config) -> Config:
                          "share one program: train them apart")
     if len(agents) > 1:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
+    if len({METHODS[m].vector for m in cfg.methods}) > 1:
+        raise ValueError(f"--method {cfg.method}: a return token per metric and one return token make two different "
+                         f"models: train them apart")
     if cfg.costs is not None:
         check_costs(cfg.env, cfg.costs)  # one error on an unknown name or a metric the env cannot compute
     logger_names(cfg.logger)

@@ -10,6 +10,11 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
                        MinSubDT's token structure, one label per trajectory, with the true return's ranking)
 ``dt-tied``            ``dt-total`` whose demos tied at MinSubDT's largest min-subdominance (K * beta: alpha = 0 in
                        every metric) share one label, their mean return (an ablation: MinSubDT's tie, true returns)
+``minsubdt-vec``       MinSubDT with a return token per metric: the K terms of eq. 2 (each demo's per-metric
+                       minimised subdominance, in [0, beta]), negated, paid at the last step; a target per metric
+                       chooses the trade-off at evaluation (``python -m minsubdt_jax.evaluate``)
+``dt-vec``             DT whose return token is the trajectory's K cost features, negated, paid at the last step
+                       (PEDA's MODT idea, per-objective returns, on our metrics; no subdominance)
 ``bc``                 behaviour cloning with the DT's architecture and context, every return token 0
 ``bc-mlp``             behaviour cloning with an MLP on the current state (the classic BC baseline)
 ``iql``                IQL (Kostrikov et al. 2021) on the true rewards, scaled by 1000 / (max - min return)
@@ -42,26 +47,35 @@ import numpy as np
 from .subdominance import surrogate_rewards
 
 
-def _surrogate(data, min_subdom):
-    return np.asarray(surrogate_rewards(min_subdom, data.lengths, data.max_len))
+def _surrogate(data, sub, costs):
+    return np.asarray(surrogate_rewards(sub.value, data.lengths, data.max_len))
 
 
-def _true(data, min_subdom):
+def _true(data, sub, costs):
     return data.rewards
 
 
-def _total(data, min_subdom):
+def _total(data, sub, costs):
     return np.asarray(surrogate_rewards(-data.returns, data.lengths, data.max_len))
 
 
-def _tied(data, min_subdom):
-    ms = np.asarray(min_subdom)
+def _per_metric(values):
+    """``[N, T, K]``: ``-values [N, K]`` at each trajectory's last step, 0 elsewhere (one reward per metric)."""
+    def rewards(data, sub, costs):
+        v = np.asarray(values(sub, costs), np.float32)
+        last = np.arange(data.max_len)[None, :] == (data.lengths - 1)[:, None]
+        return np.where(last[..., None], -v[:, None, :], 0.0).astype(np.float32)
+    return rewards
+
+
+def _tied(data, sub, costs):
+    ms = np.asarray(sub.value)
     tied = ms >= ms.max() - 1e-5  # the demos at the largest min-subdominance, K * beta when any is tied (eq. 2)
     labels = np.where(tied, np.mean(data.returns[tied]), data.returns)
     return np.asarray(surrogate_rewards(-labels, data.lengths, data.max_len))
 
 
-def _zero(data, min_subdom):
+def _zero(data, sub, costs):
     return np.zeros_like(data.rewards)
 
 
@@ -74,8 +88,8 @@ class Method:
       label: the table's column heading.
       agent: the key of the agent that trains it (:data:`minsubdt_jax.agents.AGENTS`).
       features: ``"engineered"`` or ``"learned"`` (eq. 3) cost features, for its min-subdominance.
-      rewards: ``(dataset, min_subdominance [N]) -> [N, T]`` per-step rewards whose returns-to-go are its return
-        tokens.
+      rewards: ``(dataset, MinSubdominance, costs [N, K]) -> [N, T]`` per-step rewards whose returns-to-go are its
+        return tokens (``[N, T, K]`` for a ``vector`` method: one per cost metric).
       rtg_scale: returns-to-go (and the critics' rewards) are divided by this (``--rtg-scale`` overrides); None:
         by (max - min episode return) / 1000 of the dataset, IQL's reward normalisation.
       target_from_data: evaluation target return: the dataset's best return (else 0; ``--target-return``
@@ -83,6 +97,9 @@ class Method:
       subtract_rewards: at evaluation the return-to-go token falls by each reward received (true returns).
       returns_alias: its value of the older ``--returns`` flag, if it had one.
       episodic: for critic agents, every episode's last step is a terminal transition (else only terminations').
+      vector: the return token is a K-vector, one entry per cost metric (a DT agent's only); its evaluation target
+        is a vector too, each entry in ``[0, target_bound]`` (0: the best), the token its negation.
+      target_bound: ``"beta"`` (eq. 2's per-metric term is at most the margin) or ``"cost"`` (a cost, at most 1).
     """
 
     name: str
@@ -95,6 +112,8 @@ class Method:
     subtract_rewards: bool = False
     returns_alias: str | None = None
     episodic: bool = False
+    vector: bool = False
+    target_bound: str = "beta"
 
     def scale(self, returns) -> float:
         """The divisor of the return tokens and rewards for a dataset whose episodes have ``returns [N]`` (of this
@@ -107,8 +126,13 @@ class Method:
                              f"episode has the return {float(np.max(returns)):g}; give --rtg-scale")
         return spread / 1000.0
 
-    def target_return(self, returns) -> float:
-        """The default evaluation target for a dataset whose episodes have ``returns [N]``."""
+    def target_return(self, returns, costs=None):
+        """The default evaluation target for a dataset whose episodes have ``returns [N]``; for a vector method,
+        ``[K]`` from the demos' ``costs [N, K]``: the token of eq. 2's 0 in every metric (beat every demo), or for
+        per-metric costs the best demo's cost in each metric (the data's ideal point), negated."""
+        if self.vector:
+            k = np.shape(costs)[1]
+            return -np.min(costs, 0).astype(np.float32) if self.target_from_data else np.zeros(k, np.float32)
         return float(np.max(returns)) if self.target_from_data else 0.0
 
 
@@ -121,6 +145,10 @@ METHODS = {m.name: m for m in (
            target_from_data=True),
     Method("dt-tied", "DT (episode return, MinSubDT's tie)", "dt", "engineered", _tied, rtg_scale=1000.0,
            target_from_data=True),
+    Method("minsubdt-vec", "MinSubDT (a token per metric)", "dt", "engineered",
+           _per_metric(lambda sub, costs: sub.per_feature), vector=True),
+    Method("dt-vec", "DT (a cost token per metric)", "dt", "engineered", _per_metric(lambda sub, costs: costs),
+           target_from_data=True, vector=True, target_bound="cost"),
     Method("bc", "BC (DT architecture)", "dt", "engineered", _zero, returns_alias="none"),
     Method("bc-mlp", "BC (MLP)", "mlp", "engineered", _zero),
     Method("iql", "IQL", "iql", "engineered", _true, rtg_scale=None),

@@ -29,7 +29,8 @@ class Prepared:
       min_subdominance: ``[N]`` each demo's min-subdominance against the others (eq. 2, leave-one-out).
       sampler: the device arrays the train step samples from (states normalised, return tokens scaled).
       state_mean, state_std: ``[obs]`` state normalisation.
-      rtg_scale, target_return: the return tokens' divisor and the evaluation target (unscaled).
+      rtg_scale, target_return: the return tokens' divisor and the evaluation target (unscaled; ``[K]`` for a
+        vector method, :mod:`minsubdt_jax.methods`).
       dynamics: the env rules the data is scored and evaluated in (its normalisation references).
     """
 
@@ -42,7 +43,7 @@ class Prepared:
     state_mean: np.ndarray
     state_std: np.ndarray
     rtg_scale: float
-    target_return: float
+    target_return: float | np.ndarray
     dynamics: str = "brax"
     metrics: tuple[CostMetric, ...] = ()
 
@@ -111,15 +112,20 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
                                       terminated=dataset.terminals, beta=cfg.beta, horizon=cfg.episode_length,
                                       state_mean=mean, state_std=std)
         features = learned.features(dataset.observations, dataset.lengths, dataset.terminals)
-    ms = np.asarray(min_subdominance(features, features, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True).value)
-    rewards = np.asarray(method.rewards(dataset, ms), np.float32)
+    sub = min_subdominance(features, features, cfg.beta, alpha_max=cfg.alpha_max, leave_one_out=True)
+    ms = np.asarray(sub.value)
+    rewards = np.asarray(method.rewards(dataset, sub, costs), np.float32)  # [N, T] or, per metric, [N, T, K]
+    if method.vector and cfg.target_return is not None:
+        raise ValueError(f"--method {method.name} has a target per metric: give it to python -m "
+                         f"minsubdt_jax.evaluate RUN_DIR --target, not as --target-return")
     rtg_scale = cfg.rtg_scale or method.scale(rewards.sum(1))
-    target = method.target_return(dataset.returns) if cfg.target_return is None else cfg.target_return
+    target = (method.target_return(dataset.returns, costs) if cfg.target_return is None else cfg.target_return)
     rtg = np.asarray(returns_to_go(rewards, dataset.lengths)) / rtg_scale
     if not np.isfinite(rtg).all():
         raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
     prep = Prepared(source=source, costs=costs, features=features, learned=learned, min_subdominance=ms,
-                    sampler=sampler_data(dataset, rtg, mean, std, rewards / rtg_scale,
+                    sampler=sampler_data(dataset, rtg, mean, std, rewards.reshape(rewards.shape[:2] + (-1,)).sum(-1)
+                                         / rtg_scale,
                                          np.ones_like(dataset.terminals) if method.episodic else dataset.terminals),
                     state_mean=mean, state_std=std, rtg_scale=rtg_scale,
                     target_return=target, dynamics=dynamics, metrics=metrics)

@@ -98,7 +98,7 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
                           metrics=per_model[0].metrics,
                           extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else ())
     named = [{"dataset": mo[0]} if len(mo) == 3 else {} for mo in models]
-    return [dict(ev.summary(), method=m.name, seed=s, target_return=p.target_return, **d)
+    return [dict(ev.summary(), method=m.name, seed=s, target_return=np.asarray(p.target_return).tolist(), **d)
             for ev, (m, s), p, d in zip(evs, ms, per_model, named)]
 
 

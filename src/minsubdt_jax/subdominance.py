@@ -162,13 +162,14 @@ def returns_to_go(rewards, lengths):
     """``R_t = sum_{t' >= t} r_t'`` within each trajectory, 0 on padding.
 
     Args:
-      rewards: ``[N, T]`` per-step rewards (padding ignored).
+      rewards: ``[N, T]`` per-step rewards (padding ignored), or ``[N, T, K]``: one per cost metric.
       lengths: ``[N]`` valid steps per trajectory.
     Returns:
-      ``[N, T]`` returns-to-go.
+      ``[N, T]`` (``[N, T, K]``) returns-to-go.
     """
     rewards = jnp.asarray(rewards)
     valid = jnp.arange(rewards.shape[1])[None, :] < jnp.asarray(lengths)[:, None]
+    valid = valid.reshape(valid.shape + (1,) * (rewards.ndim - 2))
     r = jnp.where(valid, rewards, 0.0)
     return jnp.where(valid, jnp.flip(jnp.cumsum(jnp.flip(r, 1), axis=1), 1), 0.0)
 

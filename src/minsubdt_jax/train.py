@@ -146,7 +146,8 @@ def _train(cfg: Config, resume: bool, verbose: bool, progress_fn, metrics, lock:
             {"sha256": sha256, "dynamics": dynamics, "datasets": [record(src) for src in sources]}, indent=2))
     dataset = sources[0].data
     agent = make_agent(methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
-                       max([cfg.episode_length] + [src.data.max_len for src in sources]))
+                       max([cfg.episode_length] + [src.data.max_len for src in sources]),
+                       return_dim=len(chosen) if methods[0].vector else 0)
     tx = optimizer_for(agent, cfg)
     state = init_seed_states(agent, tx, [model[-1] for model in models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))

@@ -29,6 +29,9 @@ def batch_size_of(name: str, cfg) -> int:
     return cfg.critic_batch_size if name in CRITIC_AGENTS else cfg.batch_size
 
 
-def make_agent(name: str, cfg, obs_dim: int, act_dim: int, max_timestep: int):
-    """The agent registered as ``name``, sized for the data."""
+def make_agent(name: str, cfg, obs_dim: int, act_dim: int, max_timestep: int, return_dim: int = 0):
+    """The agent registered as ``name``, sized for the data; ``return_dim`` K > 0: a DT with a return token per cost
+    metric (a vector method, :mod:`minsubdt_jax.methods`)."""
+    if return_dim:
+        return AGENTS[name](cfg, obs_dim, act_dim, max_timestep, return_dim=return_dim)
     return AGENTS[name](cfg, obs_dim, act_dim, max_timestep)

@@ -28,7 +28,7 @@ from .dataset import Trajectories
 @struct.dataclass
 class SamplerData:
     """Device arrays the samplers read: states ``[N, T, obs]`` (normalised), actions ``[N, T, act]``,
-    returns_to_go ``[N, T]`` (already scaled), lengths ``[N]``, weights ``[N]`` int32 (an episode's windows are
+    returns_to_go ``[N, T]`` (already scaled; ``[N, T, K]`` for a token per metric), lengths ``[N]``, weights ``[N]`` int32 (an episode's windows are
     drawn in proportion to it: its length, or 0 for an episode this model does not train on); for
     transitions, the per-step rewards ``[N, T]`` (scaled alike) and ``last_done [N]`` (1.0: the last step is a
     transition with ``done``; 0.0: it is left out)."""
@@ -44,7 +44,7 @@ class SamplerData:
 
 @struct.dataclass
 class Batch:
-    """A batch of windows: states ``[B, K, obs]``, actions ``[B, K, act]``, returns_to_go ``[B, K]``,
+    """A batch of windows: states ``[B, K, obs]``, actions ``[B, K, act]``, returns_to_go ``[B, K]`` (or ``[B, K, R]``),
     timesteps ``[B, K]`` int32, mask ``[B, K]`` bool (True on real tokens; padding is on the left)."""
 
     states: jax.Array
@@ -74,9 +74,9 @@ def sampler_data(dataset: Trajectories, returns_to_go, state_mean, state_std, re
     rtg = np.asarray(returns_to_go, np.float32)
     rewards = dataset.rewards if rewards is None else np.asarray(rewards, np.float32)
     last_done = dataset.terminals if last_done is None else np.asarray(last_done)
-    if rtg.shape != dataset.rewards.shape or rewards.shape != rtg.shape:
-        raise ValueError(f"returns_to_go and rewards must have shape {dataset.rewards.shape}, got {rtg.shape} and "
-                         f"{rewards.shape}")
+    if rtg.shape[:2] != dataset.rewards.shape or rtg.ndim > 3 or rewards.shape != dataset.rewards.shape:
+        raise ValueError(f"returns_to_go must have shape {dataset.rewards.shape} (or [N, T, K]: one per metric) and "
+                         f"rewards {dataset.rewards.shape}, got {rtg.shape} and {rewards.shape}")
     states = (dataset.observations - state_mean) / state_std
     states[~dataset.valid_mask()] = 0.0
     return SamplerData(
@@ -114,7 +114,8 @@ def sample_batch(rng, data: SamplerData, batch_size: int, context_len: int) -> B
     return Batch(
         states=jnp.where(mask[..., None], data.states[rows, t], 0.0),
         actions=jnp.where(mask[..., None], data.actions[rows, t], 0.0),
-        returns_to_go=jnp.where(mask, data.returns_to_go[rows, t], 0.0),
+        returns_to_go=jnp.where(mask.reshape(mask.shape + (1,) * (data.returns_to_go.ndim - 2)),
+                                data.returns_to_go[rows, t], 0.0),
         timesteps=t.astype(jnp.int32),
         mask=mask,
     )

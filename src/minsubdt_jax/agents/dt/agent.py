@@ -26,6 +26,7 @@ class DTAgent:
     dropout: float
     max_timestep: int
     precision: str = "f32"  # f32 | tf32 (TF32 matmuls where the device has them) | bf16 (bfloat16 matmuls)
+    return_dim: int = 0  # 0: one return token per step [.., K]; R > 0: R returns per step [.., K, R] (per metric)
 
     @property
     def model(self) -> DecisionTransformer:
@@ -36,7 +37,11 @@ class DTAgent:
     def init_params(self, key):
         K = self.context_len
         return self.model.init(key, jnp.zeros((1, K, self.obs_dim)), jnp.zeros((1, K, self.act_dim)),
-                               jnp.zeros((1, K)), jnp.zeros((1, K), jnp.int32), jnp.ones((1, K), bool))
+                               jnp.zeros((1, K) + self._r), jnp.zeros((1, K), jnp.int32), jnp.ones((1, K), bool))
+
+    @property
+    def _r(self) -> tuple:
+        return (self.return_dim,) if self.return_dim else ()
 
     def loss(self, params, batch, rng):
         if self.precision == "tf32":  # read when the step is traced
@@ -49,12 +54,13 @@ class DTAgent:
         return dt_policy(self.model)
 
     def initial_carry(self, n: int):
-        return empty_context(n, self.context_len, self.obs_dim, self.act_dim)
+        return empty_context(n, self.context_len, self.obs_dim, self.act_dim, self.return_dim)
 
 
-def make_dt_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> DTAgent:
+def make_dt_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int, return_dim: int = 0) -> DTAgent:
+    """``return_dim``: 0 for one return token per step, K for a vector method's one per cost metric."""
     return DTAgent(obs_dim, act_dim, cfg.context_len, cfg.embed_dim, cfg.n_layers, cfg.n_heads, cfg.dropout,
-                   max_timestep, cfg.precision)
+                   max_timestep, cfg.precision, return_dim)
 
 
 def train_step_bytes(cfg, n_models: int) -> int:

@@ -119,7 +119,8 @@ class Block(nn.Module):
 class DecisionTransformer(nn.Module):
     """Predicts ``a_t`` from ``(R_<=t, s_<=t, a_<t)``.
 
-    Call with states ``[B, K, obs]``, actions ``[B, K, act]``, returns_to_go ``[B, K]``, timesteps
+    Call with states ``[B, K, obs]``, actions ``[B, K, act]``, returns_to_go ``[B, K]`` (or ``[B, K, R]``: a
+    return per cost metric, embedded by one ``nn.Linear(R, d)``, torch's init at fan-in R), timesteps
     ``[B, K]`` int, mask ``[B, K]`` bool (False on left padding); returns action predictions ``[B, K, act]``
     in ``[-1, 1]``. Padded tokens are never attended to; predictions at padded steps are meaningless.
 
@@ -146,8 +147,9 @@ class DecisionTransformer(nn.Module):
         t_emb = nn.Embed(self.max_timestep, d, name="embed_timestep")(jnp.clip(timesteps, 0, self.max_timestep - 1))
         # torch's nn.Linear(1, d) init (the original DT's and d3rlpy's), not flax's zero bias: LayerNorm is
         # scale-invariant, so a zero-bias LN(w R + e_t) is nearly one direction for every R > 0 (issue 54)
-        u = torch_linear_init(1)
-        r = f32(nn.Dense(d, dtype=dt, kernel_init=u, bias_init=u, name="embed_return")(returns_to_go[..., None])) + t_emb
+        rtg = returns_to_go[..., None] if returns_to_go.ndim == mask.ndim else returns_to_go  # [B, K, R], R >= 1
+        u = torch_linear_init(rtg.shape[-1])
+        r = f32(nn.Dense(d, dtype=dt, kernel_init=u, bias_init=u, name="embed_return")(rtg)) + t_emb
         s = f32(nn.Dense(d, dtype=dt, name="embed_state")(states)) + t_emb
         a = f32(nn.Dense(d, dtype=dt, name="embed_action")(actions)) + t_emb
         x = jnp.stack([r, s, a], axis=2).reshape(B, 3 * K, d)

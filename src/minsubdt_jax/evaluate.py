@@ -1,0 +1,234 @@
+"""A trained run's policy at a target of one's choosing, without retraining (issue 55).
+
+    python -m minsubdt_jax.evaluate RUN_DIR --target x_velocity=0,energy@lived=0.5 --episodes 100
+    python -m minsubdt_jax.evaluate RUN_DIR --target 0.5          # a method with one return token: one number
+
+A vector method (``minsubdt-vec``, ``dt-vec``: :mod:`minsubdt_jax.methods`) takes a target per cost metric, each
+in ``[0, bound]``: for ``minsubdt-vec`` eq. 2's per-metric term (0: beat every demo in that metric; ``beta``: the
+metric does not matter), for ``dt-vec`` the metric's cost itself (0 the best, 1 the worst). A metric left out keeps
+the method's default (0, or the demos' best cost). A method with one return token takes one number, its return token
+(as ``--target-return``). Every model of the run (``--method``: one of its methods) is rolled out in one batched
+program, and the results are written beside the run, ``RUN_DIR/evaluations/<method>/<target>.json``.
+
+In a gymnasium loop (:mod:`minsubdt_jax.envs.gym_env`), :func:`load_policy` keeps its own context::
+
+    policy = load_policy("runs/walker", target={"x_velocity": 0.0, "energy@lived": 0.5})
+    obs, _ = env.reset(seed=0); policy.reset(); reward = 0.0
+    while True:
+        obs, reward, term, trunc, _ = env.step(policy(obs, reward))
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from .agents import batch_size_of, make_agent
+from .agents.base import PolicyInputs, eval_params, init_seed_states, optimizer_for
+from .config import Config, validate
+from .costs import cost_metrics
+from .envs import resolve_physics
+from .evaluation import across_seeds
+from .flags import load_fields
+from .methods import get_method
+from .parallel import make_mesh
+from .pipeline import load, prepare
+from .program import evaluate_models
+from .rundir import DATASET_FILE, METRICS_FILE, exit_code, json_text, write_atomic
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadedRun:
+    """A run directory read back: its config, agent, models ``[(method, seed)]``, their evaluated parameters
+    ``[M, ...]`` (the moving average where one was kept) at checkpoint ``step``, and their prepared data."""
+
+    cfg: Config
+    agent: object
+    models: list
+    params: object
+    per_model: list
+    dynamics: str
+    step: int
+
+
+def load_run(run_dir: str, metrics=None) -> LoadedRun:
+    """Read ``run_dir`` (``config.json``, ``dataset.json``, the last checkpoint) and rebuild what evaluating its
+    models needs. ``metrics``: the cost metrics, for a run trained on metrics of one's own. Raises ValueError on a
+    folder that is not a finished or checkpointed run, or whose dataset has changed since."""
+    paths = {n: os.path.join(run_dir, n) for n in ("config.json", DATASET_FILE, METRICS_FILE, "checkpoints")}
+    missing = [n for n, p in paths.items() if not os.path.exists(p)]
+    if missing:
+        raise ValueError(f"{run_dir}: not a run directory with a checkpoint (no {', '.join(missing)})")
+    cfg = validate(dataclasses.replace(Config(), **load_fields(paths["config.json"], Config, "config.json")))
+    if len(cfg.datasets) > 1:
+        raise ValueError(f"{run_dir}: trained on several datasets ({cfg.dataset}); evaluate a one-dataset run")
+    with open(paths[DATASET_FILE]) as f:
+        recorded = json.load(f)
+    chosen = cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)
+    with open(paths[METRICS_FILE]) as f:
+        if json.load(f) != [m.record() for m in chosen]:
+            raise ValueError(f"{run_dir}: the run trained on other cost metrics ({METRICS_FILE}); give the metrics of "
+                             f"one's own again: load_policy(run_dir, metrics=[...])")
+    source = load(cfg, verbose=False, physics=recorded.get("recorded_physics"))
+    if source.sha256 != recorded["sha256"]:
+        raise ValueError(f"{run_dir}: its dataset {source.path} has changed since the run (sha256 "
+                         f"{source.sha256[:12]}, the run's {recorded['sha256'][:12]})")
+    methods = [get_method(m) for m in cfg.methods]
+    models = [(m, s) for m in methods for s in range(cfg.seed, cfg.seed + cfg.seeds)]
+    preps = {m.name: prepare(cfg, m, False, source, recorded["dynamics"], metrics) for m in methods
+             if m.features != "learned"}
+    per_model = [preps.get(m.name) or prepare(dataclasses.replace(cfg, seed=s), m, False, source,
+                                              recorded["dynamics"], metrics) for m, s in models]
+    agent = make_agent(methods[0].agent, cfg, source.data.obs_dim, source.data.act_dim,
+                       max(cfg.episode_length, source.data.max_len), len(chosen) if methods[0].vector else 0)
+    template = init_seed_states(agent, optimizer_for(agent, cfg), [s for _, s in models], ema=cfg.ema_decay > 0)
+    mngr = ocp.CheckpointManager(os.path.abspath(paths["checkpoints"]),
+                                 options=ocp.CheckpointManagerOptions(create=False))
+    step = mngr.latest_step()
+    if step is None:
+        raise ValueError(f"{run_dir}: no checkpoint has been written yet")
+    state = mngr.restore(step, args=ocp.args.StandardRestore(template))
+    return LoadedRun(cfg, agent, models, eval_params(state), per_model, recorded["dynamics"], int(step))
+
+
+def parse_target(text, method, prep, beta: float):
+    """The return token for ``text`` (``"name=v,name=v"``, a ``{name: v}`` mapping, or one number for a method
+    with one return token) under ``method``: ``[K]`` for a vector method (``-v`` per metric, the default where a
+    metric is left out), else a float. One ValueError on an unknown metric, a repeated one, a value out of range or
+    not a number."""
+    names = [m.name for m in prep.metrics]
+    if not method.vector:
+        value = _number(text, "--target")
+        return value
+    pairs = list(text.items()) if isinstance(text, dict) else [p.rpartition("=")[::2] for p in str(text).split(",")]
+    bound = beta if method.target_bound == "beta" else 1.0
+    token = np.array(prep.target_return, np.float32)
+    seen = set()
+    for name, v in pairs:
+        if name not in names or name in seen:
+            raise ValueError(f"--target: {name!r} is {'repeated' if name in seen else 'not a metric of the run'}; "
+                             f"give name=value for some of {names}")
+        seen.add(name)
+        v = _number(v, f"--target {name}")
+        if not 0.0 <= v <= bound:
+            what = "eq. 2's per-metric term, 0 to the margin beta" if method.target_bound == "beta" else "a cost in [0, 1]"
+            raise ValueError(f"--target {name}={v:g}: {method.name}'s target is {what} ({bound:g})")
+        token[names.index(name)] = -v
+    return token
+
+
+def _number(v, what: str) -> float:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: not a number: {v!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{what}: must be finite, got {v!r}")
+    return x
+
+
+def _select(run: LoadedRun, method: str | None, seed: int | None = None) -> list[int]:
+    names = [m.name for m, _ in run.models]
+    if method is None and len(set(names)) > 1:
+        raise ValueError(f"the run trained {sorted(set(names))}: choose one with --method")
+    idx = [i for i, (m, s) in enumerate(run.models) if (method is None or m.name == method)
+           and (seed is None or s == seed)]
+    if not idx:
+        raise ValueError(f"the run has no model of method {method!r} and seed {seed!r}; it has "
+                         f"{[(m.name, s) for m, s in run.models]}")
+    return idx
+
+
+def evaluate_run(run_dir: str, target, episodes: int = 100, method: str | None = None, metrics=None,
+                 write: bool = True, run: LoadedRun | None = None) -> dict:
+    """Roll out every seed of ``method`` (the run's one, by default) in ``run_dir`` conditioned on ``target``
+    (:func:`parse_target`) for ``episodes`` episodes each; the result (per seed and across seeds, as
+    ``results.json``'s) is written to ``RUN_DIR/evaluations/<method>/<target>.json`` and returned."""
+    run = run or load_run(run_dir, metrics)
+    idx = _select(run, method)
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    m = run.models[idx[0]][0]
+    token = parse_target(target, m, run.per_model[idx[0]], run.cfg.beta)
+    per_model = [dataclasses.replace(run.per_model[i], target_return=token) for i in idx]
+    mesh = make_mesh(run.cfg.devices, batch_size_of(m.agent, run.cfg))
+    params = jax.tree.map(lambda x: x[np.asarray(idx)], run.params)
+    per = evaluate_models(run.cfg, run.agent, params, [run.models[i] for i in idx], per_model, mesh, episodes,
+                          resolve_physics(run.cfg.physics, mesh), run.dynamics)
+    names = [x.name for x in per_model[0].metrics]
+    asked = ({n: 0.0 - float(v) for n, v in zip(names, np.atleast_1d(token))} if m.vector else float(token))
+    out = {"run": run_dir, "method": m.name, "checkpoint_step": run.step, "target": asked, "episodes": episodes,
+           "eval": per[0] if len(per) == 1 else across_seeds(per), "eval_per_seed": per}
+    if write:
+        label = ",".join(f"{n}={v:g}" for n, v in asked.items()) if m.vector else f"{asked:g}"
+        os.makedirs(os.path.join(run_dir, "evaluations", m.name), exist_ok=True)
+        write_atomic(os.path.join(run_dir, "evaluations", m.name, label + ".json"), json_text(out, indent=2))
+    return out
+
+
+class Policy:
+    """One model of a run as a policy for a gymnasium loop: ``policy(obs, reward) -> action`` (``reward``: the last
+    step's, which a DT on true returns subtracts from its return-to-go), its context kept between calls;
+    ``reset()`` before each episode."""
+
+    def __init__(self, run: LoadedRun, i: int, token):
+        p = run.per_model[i]
+        self.agent, self.target = run.agent, token
+        self.inputs = PolicyInputs(params=jax.tree.map(lambda x: x[i], run.params), state_mean=jnp.asarray(p.state_mean),
+                                   state_std=jnp.asarray(p.state_std), target_return=jnp.asarray(token, jnp.float32),
+                                   rtg_scale=jnp.float32(p.rtg_scale),
+                                   subtract_rewards=jnp.float32(run.models[i][0].subtract_rewards))
+        self._act = jax.jit(run.agent.policy)
+        self.reset()
+
+    def reset(self) -> None:
+        self.carry, self.t, self.key = self.agent.initial_carry(1), 0, jax.random.PRNGKey(0)
+
+    def __call__(self, obs, reward: float = 0.0) -> np.ndarray:
+        self.key, k = jax.random.split(self.key)
+        obs = jnp.asarray(obs, jnp.float32)[None]
+        self.carry, action = self._act(self.inputs, self.carry, obs, jnp.float32(reward)[None], jnp.int32(self.t), k)
+        self.t += 1
+        return np.asarray(action[0])
+
+
+def load_policy(run_dir: str, target=None, method: str | None = None, seed: int | None = None,
+                metrics=None) -> Policy:
+    """The policy of the run's model of ``method`` and ``seed`` (the run's first seed by default) conditioned on
+    ``target`` (:func:`parse_target`; None: the method's default)."""
+    run = load_run(run_dir, metrics)
+    i = _select(run, method, seed)[0]
+    m, p = run.models[i][0], run.per_model[i]
+    return Policy(run, i, p.target_return if target is None else parse_target(target, m, p, run.cfg.beta))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m minsubdt_jax.evaluate", description="Roll out a trained run's "
+                                 "models at a target of one's choosing and write the results beside the run.")
+    ap.add_argument("run_dir", help="a run directory (python -m minsubdt_jax.train ... --out RUN_DIR)")
+    ap.add_argument("--target", required=True, help="name=value per cost metric (comma-separated) for minsubdt-vec "
+                    "and dt-vec; one number for a method with one return token")
+    ap.add_argument("--episodes", type=int, default=100, help="episodes per seed (100)")
+    ap.add_argument("--method", help="the method to evaluate, for a run that trained several")
+    a = ap.parse_args(argv)
+
+    def run():
+        out = evaluate_run(a.run_dir, a.target, a.episodes, a.method)
+        e = out["eval"]
+        print(f"{out['method']} at {a.target}: normalised {e['normalized_score_mean']:.1f}, costs "
+              + ", ".join(f"{k} {v:.3f}" for k, v in e["costs_mean"].items()) + f" ({len(out['eval_per_seed'])} "
+              f"seed(s) x {a.episodes} episodes); wrote {a.run_dir}/evaluations/{out['method']}/")
+    return exit_code(run)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
