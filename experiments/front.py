@@ -1,0 +1,199 @@
+"""Fronts in metric space (issue 55): does a target per metric choose the trade-off, and is the front it traces better
+than the demos'?
+
+    python experiments/front.py run --env walker --dataset medium-replay     # trains, sweeps targets (resumable)
+    python experiments/front.py report                                       # experiments/results/front.{md,png}
+
+``run`` trains, at the ``study`` preset with ``--seeds`` seeds, on the metrics ``x_velocity`` and ``energy@lived``
+(forward speed and control energy, MO-Gymnasium's two objectives; ``energy@lived`` does not charge a fall, so it
+is not survival again): ``minsubdt-vec`` and ``dt-vec`` in one program, and the scalar ``minsubdt`` three times, on
+each metric alone and on both (each scored on both: ``--eval-costs``). Then it rolls out each vector method over a
+``--grid`` x ``--grid`` grid of targets (``minsubdt-vec``: eq. 2's per-metric term from 0 to beta; ``dt-vec``: each
+metric's cost from the demos' best to their worst), ``--episodes`` episodes per seed and target
+(:func:`minsubdt_jax.evaluate.evaluate_run`). Runs live in ``runs/front/<cell>/`` and resume; each target's
+per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (commit it).
+
+``report``: per cell, the hypervolume (moocore; reference point 1 in both costs, lower is better) of the non-dominated
+points of the demos, of the scalar runs' means, and of each vector method's target sweep (the means over seeds per
+target; and per seed, mean +- std), the Spearman per metric between the target and the achieved cost over the grid,
+and a figure of the demos and the rollout means in the plane of the two costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results", "front")
+PAIR = ("x_velocity", "energy@lived")
+RUNS = {"vec": ("minsubdt-vec,dt-vec", ",".join(PAIR)), "minsubdt-x_velocity": ("minsubdt", PAIR[0]),
+        "minsubdt-energy@lived": ("minsubdt", PAIR[1]), "minsubdt-both": ("minsubdt", ",".join(PAIR))}
+VECTOR = ("minsubdt-vec", "dt-vec")
+
+
+def cell_name(a) -> str:
+    return f"{a.env}-{a.dataset}" + (f"-{a.tag}" if a.tag else "")
+
+
+def train_runs(a) -> dict:
+    """Train (or resume, or skip when finished) the four runs of a cell; their directories."""
+    from minsubdt_jax.config import preset_config, validate
+    from minsubdt_jax.train import train
+
+    dirs = {}
+    for name, (methods, costs) in RUNS.items():
+        out = os.path.join(a.runs_root, cell_name(a), name)
+        dirs[name] = out
+        if os.path.exists(os.path.join(out, "results.json")):
+            continue
+        cfg = dataclasses.replace(preset_config(a.preset, methods), env=a.env, dataset=a.dataset, seeds=a.seeds,
+                                  costs=costs, eval_costs=",".join(PAIR), out=out, **({"steps": a.steps} if a.steps
+                                                                                     else {}))
+        print(f"== {name}: {methods} on {costs} -> {out}", flush=True)
+        train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
+    return dirs
+
+
+def grid_targets(method: str, demo_costs: np.ndarray, beta: float, n: int) -> list[dict]:
+    """``n x n`` targets: eq. 2's per-metric term in [0, beta] (``minsubdt-vec``) or each metric's cost from the
+    demos' best to their worst (``dt-vec``)."""
+    if method == "minsubdt-vec":
+        axes = [np.linspace(0.0, beta, n)] * 2
+    else:
+        axes = [np.linspace(demo_costs[:, k].min(), demo_costs[:, k].max(), n) for k in range(2)]
+    return [{PAIR[0]: round(float(x), 4), PAIR[1]: round(float(y), 4)} for x in axes[0] for y in axes[1]]
+
+
+def means(per_seed: list[dict]) -> dict:
+    """Per seed: the mean normalised score and the mean of each cost over its episodes."""
+    return {"normalized": [e["normalized_score_mean"] for e in per_seed],
+            "costs": [[e["costs_mean"][m] for m in PAIR] for e in per_seed]}
+
+
+def run(a) -> None:
+    from minsubdt_jax.evaluate import evaluate_run, load_run
+
+    dirs = train_runs(a)
+    path = os.path.join(RESULTS, cell_name(a) + ".json")
+    os.makedirs(RESULTS, exist_ok=True)
+    out = json.load(open(path)) if os.path.exists(path) else {}
+    loaded = load_run(dirs["vec"])
+    demo = loaded.per_model[0].costs
+    out.update({"cell": cell_name(a), "env": a.env, "dataset": a.dataset, "preset": a.preset, "seeds": a.seeds,
+                "episodes": a.episodes, "beta": loaded.cfg.beta, "metrics": list(PAIR),
+                "dataset_sha256": loaded.per_model[0].source.sha256, "demo_costs": demo.tolist(),
+                "command": "python experiments/front.py run " + " ".join(sys.argv[2:])})
+    out["scalar"] = {}
+    for name in RUNS:
+        if name != "vec":
+            with open(os.path.join(dirs[name], "results.json")) as f:
+                res = json.load(f)
+            out["scalar"][name] = means(res["eval_per_seed"])
+    for method in VECTOR:
+        done = out.setdefault("sweeps", {}).setdefault(method, [])
+        for target in grid_targets(method, demo, loaded.cfg.beta, a.grid):
+            if any(r["target"] == target for r in done):
+                continue
+            ev = evaluate_run(dirs["vec"], target, a.episodes, method, run=loaded)
+            done.append({"target": target, **means(ev["eval_per_seed"])})
+            c = np.mean(done[-1]["costs"], 0)
+            print(f"{method} {target}: costs {c[0]:.3f}, {c[1]:.3f}; normalised "
+                  f"{np.mean(done[-1]['normalized']):.1f}", flush=True)
+            with open(path + ".tmp", "w") as f:
+                json.dump(out, f, indent=1)
+            os.replace(path + ".tmp", path)
+
+
+def hypervolume(points) -> float:
+    """Hypervolume dominated by ``points [n, 2]`` (costs, lower is better) up to the reference point (1, 1),
+    clipped into [0, 1] (moocore: it keeps the non-dominated points itself)."""
+    import moocore
+
+    p = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0.0, 1.0)
+    return float(moocore.hypervolume(p, ref=[1.0, 1.0]))
+
+
+def cell_report(r: dict) -> tuple[list[str], dict]:
+    from minsubdt_jax.costs import spearman
+
+    rows, pts = [], {"demos": np.asarray(r["demo_costs"])}
+    rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | – | – | – |")
+    scal = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()])
+    pts["scalar MinSubDT"] = scal
+    per = np.array([[hypervolume([np.asarray(v["costs"])[s] for v in r["scalar"].values()])
+                     for s in range(r["seeds"])]])
+    rows.append(f"| scalar MinSubDT ({', '.join(k.removeprefix('minsubdt-') for k in r['scalar'])}) | "
+                f"{hypervolume(scal):.3f} | {per.mean():.3f} ± {per.std():.3f} | – | – |")
+    for method, sweep in r.get("sweeps", {}).items():
+        c = np.array([s["costs"] for s in sweep])  # [targets, seeds, 2]
+        t = np.array([[s["target"][m] for m in PAIR] for s in sweep])
+        pts[method] = c.mean(1)
+        hv_seed = np.array([hypervolume(c[:, s]) for s in range(c.shape[1])])
+        rho = [np.mean([spearman(t[:, k], c[:, s, k]) for s in range(c.shape[1])]) for k in range(2)]
+        rows.append(f"| `{method}` ({len(sweep)} targets) | {hypervolume(c.mean(1)):.3f} | {hv_seed.mean():.3f} ± "
+                    f"{hv_seed.std():.3f} | {rho[0]:+.2f} | {rho[1]:+.2f} |")
+    head = [f"### {r['cell']} ({r['preset']}, {r['seeds']} seeds x {r['episodes']} episodes per target)", "",
+            f"`{r['command']}`", "",
+            f"| points | hypervolume of the means | per seed | Spearman(target, cost) {PAIR[0]} | {PAIR[1]} |",
+            "|---|---|---|---|---|"]
+    return head + rows + [""], pts
+
+
+def report(a) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = sorted(f for f in os.listdir(RESULTS) if f.endswith(".json")) if os.path.isdir(RESULTS) else []
+    if not files:
+        raise SystemExit(f"no results under {RESULTS}: run `python experiments/front.py run` first")
+    lines = ["# Fronts in metric space (issue 55)", "", "Generated by `python experiments/front.py report` from "
+             "`experiments/results/front/*.json`. Costs are lower-is-better, in [0, 1]; the hypervolume is the area "
+             f"the points dominate up to (1, 1) in ({', '.join(PAIR)}), computed by moocore. Spearman: over the "
+             "target grid, between the target in a metric and the achieved cost in it (mean over seeds; +1: the "
+             "target steers that metric perfectly).", ""]
+    fig, axes = plt.subplots(1, len(files), figsize=(6 * len(files), 5), squeeze=False)
+    for ax, f in zip(axes[0], files):
+        with open(os.path.join(RESULTS, f)) as fh:
+            r = json.load(fh)
+        text, pts = cell_report(r)
+        lines += text
+        for (label, p), style in zip(pts.items(), ("o", "s", "^", "v")):
+            ax.scatter(p[:, 0], p[:, 1], s=8 if label == "demos" else 30, marker=style, alpha=0.35 if label ==
+                       "demos" else 0.9, label=label)
+        ax.set(xlabel=f"{PAIR[0]} cost", ylabel=f"{PAIR[1]} cost", title=r["cell"])
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(os.path.join(HERE, "results", "front.png"), dpi=110)
+    lines += ["![the demos and the rollout means](front.png)", ""]
+    with open(os.path.join(HERE, "results", "front.md"), "w") as f:
+        f.write("\n".join(lines))
+    print("\n".join(lines))
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("--env", default="walker")
+    r.add_argument("--dataset", default="medium-replay")
+    r.add_argument("--preset", default="study")
+    r.add_argument("--steps", type=int, default=None, help="override the preset's steps (a first look)")
+    r.add_argument("--seeds", type=int, default=3)
+    r.add_argument("--episodes", type=int, default=100)
+    r.add_argument("--grid", type=int, default=5)
+    r.add_argument("--tag", default="", help="names the results apart (a cheaper first look)")
+    r.add_argument("--runs-root", default="runs/front")
+    sub.add_parser("report")
+    a = p.parse_args(argv)
+    run(a) if a.cmd == "run" else report(a)
+
+
+if __name__ == "__main__":
+    main()
