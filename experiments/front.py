@@ -25,6 +25,7 @@ import argparse
 import dataclasses
 import json
 import os
+import shutil
 import sys
 
 import numpy as np
@@ -41,13 +42,15 @@ def cell_name(a) -> str:
     return f"{a.env}-{a.dataset}" + (f"-{a.tag}" if a.tag else "")
 
 
-def train_runs(a) -> dict:
-    """Train (or resume, or skip when finished) the four runs of a cell; their directories."""
+def train_runs(a, names) -> dict:
+    """Train (or resume, or skip when finished) the runs ``names`` of a cell; their directories."""
     from minsubdt_jax.config import preset_config, validate
+    from minsubdt_jax.rundir import checkpoint_steps
     from minsubdt_jax.train import train
 
     dirs = {}
-    for name, (methods, costs) in RUNS.items():
+    for name in names:
+        methods, costs = RUNS[name]
         out = os.path.join(a.runs_root, cell_name(a), name)
         dirs[name] = out
         if os.path.exists(os.path.join(out, "results.json")):
@@ -56,7 +59,9 @@ def train_runs(a) -> dict:
                                   costs=costs, eval_costs=",".join(PAIR), out=out, **({"steps": a.steps} if a.steps
                                                                                      else {}))
         print(f"== {name}: {methods} on {costs} -> {out}", flush=True)
-        train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
+        if os.path.exists(out) and not checkpoint_steps(os.path.join(out, "checkpoints")):
+            shutil.rmtree(out)  # a run cut before its first checkpoint holds nothing to resume
+        train(validate(cfg), resume=os.path.exists(out))
     return dirs
 
 
@@ -79,7 +84,7 @@ def means(per_seed: list[dict]) -> dict:
 def run(a) -> None:
     from minsubdt_jax.evaluate import evaluate_run, load_run
 
-    dirs = train_runs(a)
+    dirs = train_runs(a, ["vec"])  # the vector methods and their sweeps first, the scalar runs after
     path = os.path.join(RESULTS, cell_name(a) + ".json")
     os.makedirs(RESULTS, exist_ok=True)
     out = json.load(open(path)) if os.path.exists(path) else {}
@@ -89,12 +94,12 @@ def run(a) -> None:
                 "episodes": a.episodes, "beta": loaded.cfg.beta, "metrics": list(PAIR),
                 "dataset_sha256": loaded.per_model[0].source.sha256, "demo_costs": demo.tolist(),
                 "command": "python experiments/front.py run " + " ".join(sys.argv[2:])})
-    out["scalar"] = {}
-    for name in RUNS:
-        if name != "vec":
-            with open(os.path.join(dirs[name], "results.json")) as f:
-                res = json.load(f)
-            out["scalar"][name] = means(res["eval_per_seed"])
+
+    def save():
+        with open(path + ".tmp", "w") as f:
+            json.dump(out, f, indent=1)
+        os.replace(path + ".tmp", path)
+
     for method in VECTOR:
         done = out.setdefault("sweeps", {}).setdefault(method, [])
         for target in grid_targets(method, demo, loaded.cfg.beta, a.grid):
@@ -105,9 +110,13 @@ def run(a) -> None:
             c = np.mean(done[-1]["costs"], 0)
             print(f"{method} {target}: costs {c[0]:.3f}, {c[1]:.3f}; normalised "
                   f"{np.mean(done[-1]['normalized']):.1f}", flush=True)
-            with open(path + ".tmp", "w") as f:
-                json.dump(out, f, indent=1)
-            os.replace(path + ".tmp", path)
+            save()
+    for name in RUNS:
+        if name != "vec":
+            res_dir = train_runs(a, [name])[name]
+            with open(os.path.join(res_dir, "results.json")) as f:
+                out.setdefault("scalar", {})[name] = means(json.load(f)["eval_per_seed"])
+            save()
 
 
 def hypervolume(points) -> float:
@@ -124,12 +133,13 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
 
     rows, pts = [], {"demos": np.asarray(r["demo_costs"])}
     rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | – | – | – |")
-    scal = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()])
-    pts["scalar MinSubDT"] = scal
-    per = np.array([[hypervolume([np.asarray(v["costs"])[s] for v in r["scalar"].values()])
-                     for s in range(r["seeds"])]])
-    rows.append(f"| scalar MinSubDT ({', '.join(k.removeprefix('minsubdt-') for k in r['scalar'])}) | "
-                f"{hypervolume(scal):.3f} | {per.mean():.3f} ± {per.std():.3f} | – | – |")
+    if r.get("scalar"):
+        scal = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()])
+        pts["scalar MinSubDT"] = scal
+        per = np.array([[hypervolume([np.asarray(v["costs"])[s] for v in r["scalar"].values()])
+                         for s in range(r["seeds"])]])
+        rows.append(f"| scalar MinSubDT ({', '.join(k.removeprefix('minsubdt-') for k in r['scalar'])}) | "
+                    f"{hypervolume(scal):.3f} | {per.mean():.3f} ± {per.std():.3f} | – | – |")
     for method, sweep in r.get("sweeps", {}).items():
         c = np.array([s["costs"] for s in sweep])  # [targets, seeds, 2]
         t = np.array([[s["target"][m] for m in PAIR] for s in sweep])
