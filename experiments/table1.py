@@ -65,7 +65,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     ``costs`` (``--costs``) chooses the cost metrics; its results go to their own folder (:func:`variant`).
     ``whole_env``: an env's datasets train in one program (:func:`table1_units.plan_units`); ``on_unit(paths,
     summary)`` is called with each finished unit's result files (``--commit`` commits them); ``overrides``:
-    config fields set on the preset (``precision``: on the DT family's units only).
+    config fields set on the preset (``precision``: every agent's matmuls, issue 58).
 
     In each env x dataset, the methods missing the same seeds train together, and a run of consecutive missing
     seeds is one program: ``--method a,b,... --seeds S``, every (method, seed) a model vmapped in one jitted step
@@ -79,8 +79,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     check_critic_settings(preset, methods)  # before anything is written
     out_dir = result_dir(variant(preset, costs), results_root)
     path = lambda e, d, m, s: os.path.join(out_dir, run_name(e, d, m, s) + ".json")  # noqa: E731
-    own = lambda m: dict(physics=physics, costs=costs, **{  # noqa: E731
-        k: v for k, v in overrides.items() if k != "precision" or ALL_METHODS[m].agent == "dt"})
+    own = lambda m: dict(physics=physics, costs=costs, **overrides)  # noqa: E731
     check_not_stale(path, [(e, d, m, s) for e in envs for d in datasets for m in methods for s in seeds],
                     lambda m: dataclasses.replace(preset_config(preset, m), **own(m)))
     os.makedirs(out_dir, exist_ok=True)
@@ -261,7 +260,8 @@ def main(argv=None) -> int:
                    help="train an env's datasets (all its methods x seeds) in one program (default: with --preset "
                    "paper, for a GPU)")
     p.add_argument("--precision", default="f32", choices=["f32", "tf32", "bf16"],
-                   help="the DT family's matmul precision (the critic agents' units stay f32)")
+                   help="the matmul precision of every unit (the DT family's and, since issue 58, the critic "
+                        "agents')")
     p.add_argument("--commit", action="store_true", help="git-commit each finished unit's result files, with the "
                    "command that resumes the sweep in the message")
     a = p.parse_args(argv)

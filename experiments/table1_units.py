@@ -184,7 +184,7 @@ RUN_ONLY_FIELDS = frozenset({"env", "dataset", "method", "seed", "seeds", "out",
                              "process_id", "eval_every", "eval_episodes_periodic"})
 # the DT family's network and optimiser fields, which a critic agent does not read (it has its own, agents/*/)
 DT_ONLY_FIELDS = frozenset({"context_len", "embed_dim", "n_layers", "n_heads", "dropout", "learning_rate",
-                            "weight_decay", "warmup_steps", "grad_clip", "precision"})
+                            "weight_decay", "warmup_steps", "grad_clip"})
 
 
 def stale_fields(saved: dict, expected) -> dict:

@@ -90,7 +90,7 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     table1.run_sweep(methods=("iql", "awr"), seeds=(0,), **dict(kw, envs=("hopper",)))
     assert [c[:3] for c in calls] == [("hopper", "medium,medium-replay", "iql"), ("hopper", "medium", "awr"),
                                       ("hopper", "medium-replay", "awr")]
-    assert {c[-1] for c in calls} == {"f32"}  # --precision is the DT family's
+    assert {c[-1] for c in calls} == {"bf16"}  # --precision is every agent's (issue 58)
     r = json.loads((res_dir / "hopper-medium-replay-dt-s1.json").read_text())
     assert r["config"]["dataset"] == "medium-replay" and r["config"]["method"] == "dt" and r["config"]["seed"] == 1
     assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model

@@ -161,7 +161,9 @@ PRESETS = {
 _CRITIC_STUDY = dict(chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)
 CRITIC_PRESETS = {"study": {"iql": dict(_CRITIC_STUDY, steps=60_000), "td3bc": dict(_CRITIC_STUDY, steps=100_000),
                              # 200 iterations of the reference's 1200 steps; its iterations swing, so a longer average
-                             "awr": dict(_CRITIC_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999)}}
+                             "awr": dict(_CRITIC_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999),
+                             # flat by 42k on walker medium on an H200 (docs/convergence.md); a GPU's column (issue 58)
+                             "bear": dict(_CRITIC_STUDY, steps=60_000)}}
 
 
 def preset_config(name: str, method: str = Config.method) -> Config:
