@@ -91,5 +91,7 @@ def test_imports_have_no_cycle_and_only_the_top_imports_agents():
     users = {m for m, deps in graph.items() if any(d.startswith("minsubdt_jax.agents") for d in deps)}
     assert {u for u in users if not u.startswith("minsubdt_jax.agents")} == {"minsubdt_jax.train",
                                                                             "minsubdt_jax.program",
-                                                                            "minsubdt_jax.evaluate"}
+                                                                            "minsubdt_jax.evaluate",
+                                                                            "minsubdt_jax.runsetup",
+                                                                            "minsubdt_jax.runresults"}
     assert not any(d.startswith("minsubdt_jax.behavior.train") for d in graph["minsubdt_jax.data.named"])

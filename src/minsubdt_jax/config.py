@@ -24,8 +24,8 @@ class Config:
     # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path; several, comma-separated, train
     # in one program (one env's: every model draws only its own dataset's episodes)
     dataset: str = "medium"
-    # minsubdt | minsubdt-learned | dt | dt-total | dt-tied | bc | bc-mlp | iql | td3bc | cql | brac-v | bear | awr |
-    # minsubdt-iql | minsubdt-td3bc | minsubdt-cql | minsubdt-brac-v | minsubdt-bear | minsubdt-awr: see
+    # minsubdt | minsubdt-learned | dt | dt-total | dt-tied | minsubdt-vec | dt-vec | bc | bc-mlp | iql | td3bc | cql |
+    # brac-v | bear | awr | minsubdt-iql | minsubdt-td3bc | minsubdt-cql | minsubdt-brac-v | minsubdt-bear | minsubdt-awr: see
     # minsubdt_jax.methods (--returns subdom|learned|true|none still names the first four). Several,
     # comma-separated, train in one program (they must share an agent)
     method: str = "minsubdt"

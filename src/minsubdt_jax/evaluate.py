@@ -42,13 +42,13 @@ from .flags import load_fields
 from .methods import get_method
 from .parallel import make_mesh
 from .pipeline import load, prepare
-from .program import evaluate_models
+from .program import evaluate_models, program_models
 from .rundir import DATASET_FILE, METRICS_FILE, exit_code, json_text, write_atomic
 
 
 @dataclasses.dataclass(frozen=True)
 class LoadedRun:
-    """A run directory read back: its config, agent, models ``[(method, seed)]``, their evaluated parameters
+    """A run directory read back: its config, agent, models (:class:`~minsubdt_jax.program.Model`), their evaluated parameters
     ``[M, ...]`` (the moving average where one was kept) at checkpoint ``step``, and their prepared data."""
 
     cfg: Config
@@ -83,14 +83,14 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
         raise ValueError(f"{run_dir}: its dataset {source.path} has changed since the run (sha256 "
                          f"{source.sha256[:12]}, the run's {recorded['sha256'][:12]})")
     methods = [get_method(m) for m in cfg.methods]
-    models = [(m, s) for m in methods for s in range(cfg.seed, cfg.seed + cfg.seeds)]
+    models = program_models(methods, list(range(cfg.seed, cfg.seed + cfg.seeds)), cfg.datasets)
     preps = {m.name: prepare(cfg, m, False, source, recorded["dynamics"], metrics) for m in methods
              if m.features != "learned"}
-    per_model = [preps.get(m.name) or prepare(dataclasses.replace(cfg, seed=s), m, False, source,
-                                              recorded["dynamics"], metrics) for m, s in models]
+    per_model = [preps.get(mo.method.name) or prepare(dataclasses.replace(cfg, seed=mo.seed), mo.method, False,
+                                                      source, recorded["dynamics"], metrics) for mo in models]
     agent = make_agent(methods[0].agent, cfg, source.data.obs_dim, source.data.act_dim,
                        max(cfg.episode_length, source.data.max_len), len(chosen) if methods[0].vector else 0)
-    template = init_seed_states(agent, optimizer_for(agent, cfg), [s for _, s in models], ema=cfg.ema_decay > 0)
+    template = init_seed_states(agent, optimizer_for(agent, cfg), [mo.seed for mo in models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(os.path.abspath(paths["checkpoints"]),
                                  options=ocp.CheckpointManagerOptions(create=False))
     step = mngr.latest_step()
@@ -137,14 +137,14 @@ def _number(v, what: str) -> float:
 
 
 def _select(run: LoadedRun, method: str | None, seed: int | None = None) -> list[int]:
-    names = [m.name for m, _ in run.models]
+    names = [mo.method.name for mo in run.models]
     if method is None and len(set(names)) > 1:
         raise ValueError(f"the run trained {sorted(set(names))}: choose one with --method")
-    idx = [i for i, (m, s) in enumerate(run.models) if (method is None or m.name == method)
-           and (seed is None or s == seed)]
+    idx = [i for i, mo in enumerate(run.models) if (method is None or mo.method.name == method)
+           and (seed is None or mo.seed == seed)]
     if not idx:
         raise ValueError(f"the run has no model of method {method!r} and seed {seed!r}; it has "
-                         f"{[(m.name, s) for m, s in run.models]}")
+                         f"{[(mo.method.name, mo.seed) for mo in run.models]}")
     return idx
 
 
@@ -157,7 +157,7 @@ def evaluate_run(run_dir: str, target, episodes: int = 100, method: str | None =
     idx = _select(run, method)
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
-    m = run.models[idx[0]][0]
+    m = run.models[idx[0]].method
     token = parse_target(target, m, run.per_model[idx[0]], run.cfg.beta)
     per_model = [dataclasses.replace(run.per_model[i], target_return=token) for i in idx]
     mesh = make_mesh(run.cfg.devices, batch_size_of(m.agent, run.cfg))
@@ -186,7 +186,7 @@ class Policy:
         self.inputs = PolicyInputs(params=jax.tree.map(lambda x: x[i], run.params), state_mean=jnp.asarray(p.state_mean),
                                    state_std=jnp.asarray(p.state_std), target_return=jnp.asarray(token, jnp.float32),
                                    rtg_scale=jnp.float32(p.rtg_scale),
-                                   subtract_rewards=jnp.float32(run.models[i][0].subtract_rewards))
+                                   subtract_rewards=jnp.float32(run.models[i].method.subtract_rewards))
         self._act = jax.jit(run.agent.policy)
         self.reset()
 
@@ -207,7 +207,7 @@ def load_policy(run_dir: str, target=None, method: str | None = None, seed: int 
     ``target`` (:func:`parse_target`; None: the method's default)."""
     run = load_run(run_dir, metrics)
     i = _select(run, method, seed)[0]
-    m, p = run.models[i][0], run.per_model[i]
+    m, p = run.models[i].method, run.per_model[i]
     return Policy(run, i, p.target_return if target is None else parse_target(target, m, p, run.cfg.beta))
 
 

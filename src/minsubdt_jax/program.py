@@ -10,6 +10,8 @@ single-dataset run would. Each is evaluated against its own dataset's demonstrat
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,8 +20,33 @@ from .agents.base import PolicyInputs
 from .agents.dt.agent import train_step_bytes
 from .costs import cost_metrics
 from .evaluation import evaluate_policy
+from .methods import Method
 from .parallel import available_bytes, replicate
 from .pipeline import Prepared
+
+@dataclass(frozen=True)
+class Model:
+    """One model of a program: its method and seed, and its dataset where the program trains several (else None)."""
+
+    method: Method
+    seed: int
+    dataset: str | None = None
+
+    @property
+    def label(self) -> str:
+        """``[<dataset>-]<method>-s<seed>``: its name in loggers and plots."""
+        return (f"{self.dataset}-" if self.dataset else "") + f"{self.method.name}-s{self.seed}"
+
+    def record(self) -> dict:
+        """Its entry in ``results.json``'s ``models`` (and every evaluation's summary)."""
+        return {**({"dataset": self.dataset} if self.dataset else {}), "method": self.method.name, "seed": self.seed}
+
+
+def program_models(methods: list[Method], seeds: list[int], datasets: tuple[str, ...]) -> list[Model]:
+    """The models of a program, dataset-major then method-major: one per (dataset,) method and seed."""
+    several = len(datasets) > 1
+    return [Model(m, s, d if several else None) for d in datasets for m in methods for s in seeds]
+
 
 PER_MODEL_FIELDS = ("returns_to_go", "rewards", "last_done")  # what a method's data changes: its rewards
 SHARED_FIELDS = ("states", "actions", "lengths")  # a dataset's own (its weights are per model over several)
@@ -68,8 +95,7 @@ def stack_models(per_model: list[Prepared]):
 
 def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared], mesh, episodes: int,
                     physics: str = "auto", dynamics: str = "brax") -> list[dict]:
-    """Evaluate the M trained models (``params [M, ...]``, ``models [(method, seed)]`` or ``[(dataset, method,
-    seed)]``) on ``episodes`` episodes each, in one batched program per dataset (``physics``; in MJX the episodes
+    """Evaluate the M trained models (``params [M, ...]``, ``models``: their :class:`Model` records) on ``episodes`` episodes each, in one batched program per dataset (``physics``; in MJX the episodes
     split over ``mesh``) under ``dynamics``, against that dataset's demonstrations; a model of seed s has its
     episodes seeded ``s + 10000``. One summary dict per model, with its method and seed (and dataset)."""
     sources = distinct_sources(per_model)
@@ -84,22 +110,20 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
                 out[i] = ev
         return out
     stack = lambda get: np.stack([np.asarray(get(p), np.float32) for p in per_model])  # noqa: E731
-    ms = [m[-2:] for m in models]  # (method, seed)
     inputs = PolicyInputs(params=params, state_mean=stack(lambda p: p.state_mean),
                           state_std=stack(lambda p: p.state_std), target_return=stack(lambda p: p.target_return),
                           rtg_scale=stack(lambda p: p.rtg_scale),
-                          subtract_rewards=np.array([m.subtract_rewards for m, _ in ms], np.float32))
+                          subtract_rewards=np.array([mo.method.subtract_rewards for mo in models], np.float32))
     learned = [p.learned for p in per_model] if any(p.learned for p in per_model) else None
     evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
-                          seeds=[s + 10_000 for _, s in ms], demo_costs=per_model[0].costs, beta=cfg.beta,
+                          seeds=[mo.seed + 10_000 for mo in models], demo_costs=per_model[0].costs, beta=cfg.beta,
                           alpha_max=cfg.alpha_max, learned=learned,
                           demo_features=[p.features for p in per_model] if learned else None, mesh=mesh,
                           physics=physics, dynamics=dynamics, threads=cfg.physics_threads,
                           metrics=per_model[0].metrics,
                           extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else ())
-    named = [{"dataset": mo[0]} if len(mo) == 3 else {} for mo in models]
-    return [dict(ev.summary(), method=m.name, seed=s, target_return=np.asarray(p.target_return).tolist(), **d)
-            for ev, (m, s), p, d in zip(evs, ms, per_model, named)]
+    return [dict(ev.summary(), **mo.record(), target_return=np.asarray(p.target_return).tolist())
+            for ev, mo, p in zip(evs, models, per_model)]
 
 
 def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
