@@ -82,6 +82,7 @@ def means(per_seed: list[dict]) -> dict:
 
 
 def run(a) -> None:
+    from minsubdt_jax.atomic import write_atomic
     from minsubdt_jax.evaluate import evaluate_run, load_run
 
     dirs = train_runs(a, ["vec"])  # the vector methods and their sweeps first, the scalar runs after
@@ -96,9 +97,7 @@ def run(a) -> None:
                 "command": "python experiments/front.py run " + " ".join(sys.argv[2:])})
 
     def save():
-        with open(path + ".tmp", "w") as f:
-            json.dump(out, f, indent=1)
-        os.replace(path + ".tmp", path)
+        write_atomic(path, json.dumps(out, indent=1))
 
     for method in VECTOR:
         done = out.setdefault("sweeps", {}).setdefault(method, [])

@@ -74,7 +74,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.config import preset_config
-    from minsubdt_jax.rundir import checkpoint_steps
+    from minsubdt_jax.rundir import checkpoint_steps, write_atomic
 
     check_critic_settings(preset, methods)  # before anything is written
     out_dir = result_dir(variant(preset, costs), results_root)
@@ -110,9 +110,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
             d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
             dst = path(env, d, m, s)
             assert name == run_name(env, d, m, s), (name, d, m, s)
-            with open(dst + ".tmp", "w") as f:
-                json.dump(compact(one), f)
-            os.replace(dst + ".tmp", dst)  # a result file is complete or absent
+            write_atomic(dst, json.dumps(compact(one)))  # a result file is complete or absent
             written.append(dst)
             scores.append(f"{one.get('eval', {}).get('normalized_score_mean', float('nan')):.1f}")
         log(f"[{i + 1}/{len(todo)}] {label}: normalised {' '.join(scores)} ({time.time() - t0:.0f} s)")

@@ -17,6 +17,8 @@ from typing import Callable
 
 import numpy as np
 
+from .atomic import current_umask, write_atomic  # noqa: F401  (the run's writes; re-exported)
+
 DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 
 
@@ -145,34 +147,6 @@ def json_text(obj, **kw) -> str:
         return x
 
     return json.dumps(clean(obj), allow_nan=False, **kw)
-
-
-def write_atomic(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: a reader or a kill never sees half. The
-    file gets the mode the umask gives a new file (``mkstemp``'s own is 0600)."""
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=os.path.basename(path) + ".",
-                               suffix=".tmp")
-    try:
-        os.fchmod(fd, 0o666 & ~current_umask())
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-
-
-def current_umask() -> int:
-    """The process's umask, read from /proc (Linux) so that no other thread ever sees it changed; elsewhere set
-    and restored at once."""
-    try:
-        with open("/proc/self/status") as f:
-            return next(int(line.split()[1], 8) for line in f if line.startswith("Umask:"))
-    except (OSError, StopIteration, ValueError, IndexError):
-        mask = os.umask(0)
-        os.umask(mask)
-        return mask
 
 
 def read_metrics(path: str) -> list[dict]:

@@ -16,6 +16,7 @@ import jax
 import numpy as np
 from flax import traverse_util
 
+from ..atomic import atomic_path
 from ..envs import env_spec, make_rollout, random_policy
 from .networks import policy_step
 
@@ -25,10 +26,9 @@ POLICY_DIR = os.path.join(os.path.dirname(__file__), "snapshots")
 def save_snapshot(path: str, actor_params, **meta) -> None:
     """Actor parameters as a flat ``.npz`` (``params/torso/Dense_0/kernel`` …) plus scalar metadata."""
     flat = traverse_util.flatten_dict(jax.device_get(actor_params), sep="/")
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, **{k: np.asarray(v, np.float32) for k, v in flat.items()},
-             **{f"meta/{k}": np.asarray(v) for k, v in meta.items()})
-    os.replace(tmp, path)
+    with atomic_path(path, suffix=".tmp.npz") as tmp:  # np.savez adds .npz to a name without it
+        np.savez(tmp, **{k: np.asarray(v, np.float32) for k, v in flat.items()},
+                 **{f"meta/{k}": np.asarray(v) for k, v in meta.items()})
 
 
 def load_snapshot(path: str) -> tuple[Any, dict]:

@@ -34,7 +34,7 @@ from flax import struct
 
 from ..caches import enable_compilation_cache
 from ..envs import MjxEnv, env_spec, make_rollout
-from ..rundir import check_run_dir, exit_code, progress, truncate_metrics
+from ..rundir import check_run_dir, exit_code, progress, truncate_metrics, write_atomic
 from .config import SACConfig, parse_args, validate
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
 from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
@@ -204,8 +204,7 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     ckpt_dir = os.path.abspath(os.path.join(out, "checkpoints"))
     check_run_dir(dataclasses.asdict(cfg), out, ckpt_dir, resume, RESUMABLE_CHANGES)
     os.makedirs(os.path.join(out, "snapshots"), exist_ok=True)
-    with open(os.path.join(out, "config.json"), "w") as f:
-        json.dump(dataclasses.asdict(cfg), f, indent=2, sort_keys=True)
+    write_atomic(os.path.join(out, "config.json"), json.dumps(dataclasses.asdict(cfg), indent=2, sort_keys=True))
     state, env_state = sac.init(jax.random.PRNGKey(cfg.seed))
     mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=1, create=True))
     if resume:

@@ -12,12 +12,12 @@ from the time limit (``horizon``) and the load says so (:attr:`DatasetFile.timeo
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 
 import h5py
 import numpy as np
 
+from ..atomic import atomic_path
 from ..envs import dynamics_report
 from ..envs.check import NEITHER
 from ..envs.rules import check_dynamics_name
@@ -102,25 +102,17 @@ def save_d4rl(dataset: Trajectories, path, infos: dict[str, np.ndarray] | None =
     os.makedirs(folder, exist_ok=True)
     flat = dataset.to_flat()
     digest = dataset.sha256()
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=os.path.basename(path) + ".", suffix=".tmp")
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            for k, v in flat.items():
-                f.create_dataset(k, data=v, compression="gzip", compression_opts=1)
-            for k, v in (infos or {}).items():
-                f.create_dataset(f"infos/{k}", data=v, compression="gzip", compression_opts=1)
-            f.attrs["sha256"] = digest
-            if infos:
-                f.attrs["infos_sha256"] = checksum(infos)
-            for name, value in (("env", env), ("dynamics", dynamics), ("physics", physics)):
-                if value is not None:
-                    f.attrs[name] = value
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        for k, v in flat.items():
+            f.create_dataset(k, data=v, compression="gzip", compression_opts=1)
+        for k, v in (infos or {}).items():
+            f.create_dataset(f"infos/{k}", data=v, compression="gzip", compression_opts=1)
+        f.attrs["sha256"] = digest
+        if infos:
+            f.attrs["infos_sha256"] = checksum(infos)
+        for name, value in (("env", env), ("dynamics", dynamics), ("physics", physics)):
+            if value is not None:
+                f.attrs[name] = value
     return digest
 
 
