@@ -26,7 +26,12 @@ runs() {  # runs PREFIX: the five runs, in the current directory's code (PYTHONP
 git -C "$here" worktree remove --force "$tree"
 rc=0
 for x in a b c d e; do
-  python "$here/experiments/compare_runs.py" "$out/ref-$x" "$out/new-$x" | grep -q '"identical": true' \
-    && echo "run $x: identical" || { echo "run $x: DIFFERS (see $out/ref-$x, $out/new-$x)"; rc=1; }
+  report=$(python "$here/experiments/compare_runs.py" "$out/ref-$x" "$out/new-$x" 2>/dev/null)
+  if [[ $report == *'"identical": true'* ]]; then
+    echo "run $x: identical"
+  else
+    echo "run $x: DIFFERS (see $out/ref-$x, $out/new-$x)"
+    rc=1
+  fi
 done
 exit $rc

@@ -95,3 +95,17 @@ def test_imports_have_no_cycle_and_only_the_top_imports_agents():
                                                                             "minsubdt_jax.runsetup",
                                                                             "minsubdt_jax.runresults"}
     assert not any(d.startswith("minsubdt_jax.behavior.train") for d in graph["minsubdt_jax.data.named"])
+
+
+def test_the_agents_and_their_losses_load_without_the_physics_stack():
+    """Issue 57: records and samplers apart from dataset generation. Every agent (and its losses, which read
+    ``Transitions`` or ``Batch``) imports without loading the envs, MuJoCo, brax or the SAC behaviour code; the
+    data package's I/O and recording load on first use."""
+    code = ("import sys, pkgutil, importlib, minsubdt_jax.agents as a\n"
+            "for m in pkgutil.walk_packages(a.__path__, 'minsubdt_jax.agents.'): importlib.import_module(m.name)\n"
+            "heavy = [n for n in ('minsubdt_jax.envs', 'mujoco', 'brax', 'minsubdt_jax.behavior', "
+            "'minsubdt_jax.data.named', 'minsubdt_jax.data.d4rl') if n in sys.modules]\n"
+            "from minsubdt_jax.data import resolve_dataset, save_d4rl\n"
+            "print(heavy, 'minsubdt_jax.data.named' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["[]", "True"], out

@@ -13,7 +13,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from ..behavior.networks import MLP
+from ..networks import MLP
 
 
 def f32(x):

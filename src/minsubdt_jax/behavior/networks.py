@@ -6,27 +6,15 @@ signature of :func:`minsubdt_jax.envs.make_rollout` and samples from the stochas
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Sequence
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from ..networks import MLP
+
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
-
-
-class MLP(nn.Module):
-    """ReLU layers of widths ``hidden``; ``dtype``: the matmuls' dtype (bfloat16 for --precision bf16), parameters
-    float32."""
-
-    hidden: Sequence[int]
-    dtype: Any = None
-
-    @nn.compact
-    def __call__(self, x):
-        for h in self.hidden:
-            x = nn.relu(nn.Dense(h, dtype=self.dtype)(x))
-        return x
 
 
 class Actor(nn.Module):

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ...behavior.networks import MLP
+from ...networks import MLP
 from ...data import draw_episodes
 from ..actor_critic import CriticAgentBase
 from ..critic_networks import f32

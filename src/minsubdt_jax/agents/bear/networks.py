@@ -10,7 +10,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from ...behavior.networks import MLP
+from ...networks import MLP
 from ..critic_networks import f32
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import flax.linen as nn
 import jax.numpy as jnp
 
-from ...behavior.networks import MLP
+from ...networks import MLP
 
 
 class MLPPolicy(nn.Module):
