@@ -109,3 +109,39 @@ def test_the_agents_and_their_losses_load_without_the_physics_stack():
             "print(heavy, 'minsubdt_jax.data.named' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["[]", "True"], out
+
+
+def _layers() -> dict[str, tuple[int, str]]:
+    """``docs/ARCHITECTURE.md``'s layer table, bottom up: each module named at the top level of a row's *modules*
+    column (outside parentheses) -> (row index, layer name)."""
+    import os
+    import re
+
+    with open(os.path.join(os.path.dirname(__file__), "..", "docs", "ARCHITECTURE.md")) as f:
+        table = f.read().split("## Layers, bottom up")[1].split("\n\n")[1].splitlines()[2:]
+    layer = {}
+    for i, row in enumerate(table):
+        name, modules = [c.strip() for c in row.strip("|").split("|")][:2]
+        depth, top = 0, ""
+        for ch in modules:
+            depth += (ch == "(") - (ch == ")")
+            top += ch if depth == 0 and ch not in "()" else ""
+        for m in re.findall(r"`([^`]+)`", top):
+            layer["minsubdt_jax." + m.strip("/").replace("/", ".")] = (i, name)
+    return layer
+
+
+def test_the_architecture_layer_table_matches_the_imports():
+    """Issue 57: every module is in a row of docs/ARCHITECTURE.md's layer table (a package's row holds its modules),
+    and no module imports one of a row above its own."""
+    layer, graph = _layers(), _internal_imports()
+
+    def row(m):
+        parts = m.split(".")
+        return next((layer[".".join(parts[:k])] for k in range(len(parts), 1, -1) if ".".join(parts[:k]) in layer),
+                    None)
+
+    assert [m for m in graph if m != "minsubdt_jax" and row(m) is None] == []
+    upward = [f"{m} ({row(m)[1]}) imports {d} ({row(d)[1]})" for m, deps in graph.items() if m != "minsubdt_jax"
+              for d in deps if d != "minsubdt_jax" and row(d)[0] > row(m)[0]]
+    assert upward == []
