@@ -49,7 +49,7 @@ class AWRAgent(CriticAgentBase):
     lam: float = 0.95
     temperature: float = 1.0
     action_std: float = 0.2
-    critic_share: float = 1 / 6  # value steps per iteration (the reference's 200 of 1200)
+    value_every: int = 6  # one value step in every 6 of an iteration, first (the reference's 200 of 1200)
 
     @property
     def networks(self):
@@ -72,7 +72,7 @@ class AWRAgent(CriticAgentBase):
         """Jitted ``chunk(state, data) -> (state, (losses [n_steps(, S)], parts))``: one AWR iteration (per seed, on
         a leading seed axis with ``seed_axis``). One device: the batch is not split over a mesh."""
         opt = self.optimizers
-        n_value = n_steps // 6 if n_steps >= 6 else 0
+        n_value = n_steps // self.value_every
 
         def iteration(state: TrainState, data):
             valid = jnp.arange(data.states.shape[1])[None, :] < data.lengths[:, None]
@@ -122,6 +122,10 @@ class AWRAgent(CriticAgentBase):
             return state, (losses.T, parts)  # [n_steps, S], as the scanned chunks give them
 
         return jax.jit(chunk, donate_argnums=0)
+
+    def make_step(self, *args, **kwargs):
+        """AWR has no step of its own to scan: its chunk is a whole iteration (:meth:`make_chunk`)."""
+        raise NotImplementedError("AWR trains by iterations: use make_chunk")
 
     @property
     def policy(self):
