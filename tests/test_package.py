@@ -103,7 +103,8 @@ def test_the_agents_and_their_losses_load_without_the_physics_stack():
     data package's I/O and recording load on first use."""
     code = ("import sys, pkgutil, importlib, minsubdt_jax.agents as a\n"
             "for m in pkgutil.walk_packages(a.__path__, 'minsubdt_jax.agents.'): importlib.import_module(m.name)\n"
-            "heavy = [n for n in ('minsubdt_jax.envs', 'mujoco', 'brax', 'minsubdt_jax.behavior', "
+            "heavy = [n for n in ('minsubdt_jax.envs.rules', 'minsubdt_jax.envs.mjx_backend', "
+            "'minsubdt_jax.envs.c_backend', 'mujoco', 'brax', 'minsubdt_jax.behavior', "
             "'minsubdt_jax.data.named', 'minsubdt_jax.data.d4rl') if n in sys.modules]\n"
             "from minsubdt_jax.data import resolve_dataset, save_d4rl\n"
             "print(heavy, 'minsubdt_jax.data.named' in sys.modules)\n")

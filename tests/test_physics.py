@@ -131,7 +131,7 @@ def test_a_gymnasium_v4_file_trains_and_is_evaluated_in_d4rl_dynamics(tmp_path):
     import os
 
     from minsubdt_jax.config import PRESETS, validate
-    from minsubdt_jax.references import D4RL_REFERENCES
+    from minsubdt_jax.references import reference_returns
     from minsubdt_jax.train import train
 
     pytest.importorskip("gymnasium")
@@ -149,7 +149,7 @@ def test_a_gymnasium_v4_file_trains_and_is_evaluated_in_d4rl_dynamics(tmp_path):
     how = res["physics"]["dynamics_from"]
     assert how["how"].startswith("checked") and how["best"] == "d4rl"
     assert how["dynamics"]["d4rl"]["reproduced"] == 1.0 and how["dynamics"]["brax"]["reproduced"] < 0.5
-    lo, hi = D4RL_REFERENCES["hopper"]
+    lo, hi = reference_returns("hopper", "d4rl")
     assert (res["references"]["random"], res["references"]["expert"]) == (lo, hi)
     ev = res["eval"]
     np.testing.assert_allclose(ev["normalized_score_mean"], np.mean(100 * (np.array(ev["returns"]) - lo) / (hi - lo)),

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from .costs import check_costs, describe_metrics
 from .flags import add_flags, load_fields
-from .envs import DYNAMICS, PHYSICS
+from .envs import DYNAMICS, ENVS, PHYSICS
 from .loggers import logger_names
 from .methods import METHODS, RETURNS_ALIASES
 from .parallel import distributed_settings
@@ -175,7 +175,7 @@ def preset_config(name: str, method: str = Config.method) -> Config:
 
 LR_SCHEDULES = ("constant", "cosine")
 SINGLE_DATASET_AGENTS = ("awr",)  # agents whose step reads every stored episode: one dataset per program
-CHOICES = {"env": ("hopper", "walker", "halfcheetah"), "preset": tuple(PRESETS), "physics": PHYSICS,
+CHOICES = {"env": tuple(ENVS), "preset": tuple(PRESETS), "physics": PHYSICS,
            "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES, "precision": ("f32", "tf32", "bf16")}
 
 

@@ -86,7 +86,7 @@ class CostMetric:
 
 
 def _x_velocity(s: EnvSpec) -> CostMetric:
-    hi = {"hopper": 4.0, "walker": 6.0, "halfcheetah": 15.0}[s.name]  # covers random to expert gaits, m/s
+    hi = s.speed_hi  # covers random to expert gaits, m/s
     i = s.x_velocity_index
     return CostMetric("x_velocity", lambda o, a: o[..., i], -1.0, hi, higher_is_better=True,
                       meaning=f"forward speed v_x, from -1 (cost 1) to {hi:g} m/s (cost 0)")
@@ -117,20 +117,17 @@ def _uprightness(s: EnvSpec) -> CostMetric:
 
 
 def _joint_speed(s: EnvSpec) -> CostMetric:
-    i, hi = s.x_velocity_index + 3, 30.0 if s.name == "halfcheetah" else 10.0
+    i, hi = s.x_velocity_index + 3, s.joint_speed_hi
     return CostMetric("joint_speed", lambda o, a: jnp.mean(jnp.abs(o[..., i:]), axis=-1), 0.0, hi,
                       meaning=f"smooth joints: mean |angular velocity| of the leg joints, from 0 to {hi:g} rad/s")
 
 
-SPEED_BANDS = {"hopper": (2.0, 3.0), "walker": (2.5, 3.5), "halfcheetah": (4.0, 6.0)}  # default bands, m/s
-
-
 def _speed_band(s: EnvSpec, lo: float | None = None, hi: float | None = None) -> CostMetric:
-    lo, hi = SPEED_BANDS[s.name] if lo is None else (lo, hi)
+    lo, hi = s.speed_band if lo is None else (lo, hi)
     if not lo < hi:
         raise ValueError(f"cost metric speed_band:{lo:g}:{hi:g}: need LO < HI")
-    i, sat = s.x_velocity_index, 5.0 if s.name == "halfcheetah" else 2.0
-    name = "speed_band" if (lo, hi) == SPEED_BANDS[s.name] else f"speed_band:{lo:g}:{hi:g}"
+    i, sat = s.x_velocity_index, s.speed_band_sat
+    name = "speed_band" if (lo, hi) == s.speed_band else f"speed_band:{lo:g}:{hi:g}"
     return CostMetric(name, lambda o, a: jnp.maximum(jnp.maximum(lo - o[..., i], o[..., i] - hi), 0.0), 0.0, sat,
                       meaning=f"forward speed in a target band: distance of v_x from [{lo:g}, {hi:g}] m/s, 0 inside, "
                               f"1 from {sat:g} m/s outside (speed_band:LO:HI sets the band)")

@@ -15,9 +15,6 @@ import numpy as np
 from .behavior.snapshots import load_manifest
 from .envs import env_spec
 
-# d4rl/infos.py, the -v2 locomotion datasets (the same for every dataset of an env)
-D4RL_REFERENCES = {"hopper": (-20.272305, 3234.3), "halfcheetah": (-280.178953, 12135.0),
-                   "walker": (1.629008, 4592.3)}
 REFERENCE_SOURCES = {
     "brax": "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes",
     "d4rl": "D4RL's references (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE)",
@@ -31,9 +28,10 @@ SCALE = "0-100: 100 (R - R_random) / (R_expert - R_random); D4RL's and Minari's 
 
 def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:
     """``(R_random, R_expert)`` for ``env`` in ``dynamics``."""
-    name = env_spec(env).name
-    if dynamics == "d4rl":
-        return D4RL_REFERENCES[name]
+    spec = env_spec(env)
+    name = spec.name
+    if dynamics == "d4rl":  # d4rl/infos.py, the -v2 locomotion datasets (the same for every dataset of an env)
+        return spec.d4rl_random, spec.d4rl_expert
     if dynamics != "brax":
         raise ValueError(f"no references for dynamics {dynamics!r}; choose one of {sorted(REFERENCE_SOURCES)}")
     refs = load_manifest(name)["references"]

@@ -43,14 +43,14 @@ RECIPE_VERSION = {"medium-replay": 2}
 # D4RL's sizes (its -v2 files): medium, expert and random 1M; medium-replay the replay buffer up to the medium
 # policy; medium-expert is medium + expert, each of this size
 D4RL_TRANSITIONS = {"random": 1_000_000, "medium": 1_000_000, "expert": 1_000_000, "medium-expert": 1_000_000,
-                    "medium-replay": {"hopper": 402_000, "walker": 302_000, "halfcheetah": 202_000}}
+                    "medium-replay": None}  # the env's own (EnvSpec.replay_transitions)
 MAX_BATCH = 128  # episodes per rollout call (at most)
 
 
 def d4rl_transitions(env: str, dataset: str) -> int:
     """D4RL's size of ``dataset`` for ``env`` (the default of ``--transitions``; medium-expert: per part)."""
     n = D4RL_TRANSITIONS[dataset]
-    return n[env_spec(env).name] if isinstance(n, dict) else n
+    return env_spec(env).replay_transitions if n is None else n
 
 
 def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: int, physics: str = "mujoco") -> str:

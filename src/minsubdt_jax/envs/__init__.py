@@ -1,13 +1,25 @@
 """Environments: hopper, walker, halfcheetah; their rules in two dynamics (brax, d4rl) written once
 (:mod:`~minsubdt_jax.envs.rules`), two physics backends (MJX, C MuJoCo) that run them, batched rollouts of any
-policy, and the check of which dynamics a dataset came from."""
+policy, and the check of which dynamics a dataset came from. The env records (:mod:`~minsubdt_jax.envs.spec`) are
+imported here; the physics loads on first use of its names, so reading an env's facts does not load MuJoCo."""
 
-from .check import check_dynamics, dynamics_report
-from .mjx_backend import EnvState, MjxEnv
-from .rollout import PHYSICS, make_rollout, make_seed_rollout, physics_record, resolve_physics
-from .rules import DYNAMICS, env_rules, mj_model
+import importlib
+
 from .spec import ENVS, EnvSpec, Policy, Rollout, check_dataset, env_spec, random_policy
+
+_LAZY = {**dict.fromkeys(("check_dynamics", "dynamics_report"), "check"),
+         **dict.fromkeys(("EnvState", "MjxEnv"), "mjx_backend"),
+         **dict.fromkeys(("PHYSICS", "make_rollout", "make_seed_rollout", "physics_record", "resolve_physics"),
+                         "rollout"),
+         **dict.fromkeys(("DYNAMICS", "env_rules", "mj_model"), "rules")}
 
 __all__ = ["DYNAMICS", "ENVS", "EnvSpec", "EnvState", "MjxEnv", "PHYSICS", "Policy", "Rollout", "check_dataset",
            "check_dynamics", "dynamics_report", "env_rules", "env_spec", "make_rollout", "make_seed_rollout",
            "mj_model", "physics_record", "random_policy", "resolve_physics"]
+
+
+def __getattr__(name):
+    """The physics' names, imported from their module on first use (PEP 562)."""
+    if name in _LAZY:
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -19,6 +19,12 @@ class EnvSpec:
     then ``qvel``), so cost metrics can be read from any D4RL-layout dataset as well as from our rollouts.
     ``reset_obs0`` is ``obs[0]`` in a reset state (torso height for hopper and walker, the root's z offset for
     halfcheetah), in brax MJX and in gym alike: it tells apart datasets of envs with the same shapes.
+
+    The rest is what other layers tune per env, kept here so an env is described in one place: ``terminates``
+    (episodes end when the body falls), the cost metrics' ranges (``speed_hi``: the forward speed of cost 0, m/s;
+    ``joint_speed_hi``, rad/s; ``speed_band`` and its saturation ``speed_band_sat``, m/s), D4RL's medium-replay size
+    (``replay_transitions``), D4RL's reference returns (``d4rl_random``, ``d4rl_expert``: d4rl/infos.py) and BEAR's
+    MMD kernel (``bear_kernel``: its reference's choice per env).
     """
 
     name: str
@@ -28,19 +34,29 @@ class EnvSpec:
     x_velocity_index: int
     z_velocity_index: int | None
     reset_obs0: float
-
-    @property
-    def terminates(self) -> bool:
-        """Episodes end early when the body falls (hopper, walker); halfcheetah runs to the time limit."""
-        return self.name in ("hopper", "walker")
+    terminates: bool
+    speed_hi: float
+    joint_speed_hi: float
+    speed_band: tuple[float, float]
+    speed_band_sat: float
+    replay_transitions: int
+    d4rl_random: float
+    d4rl_expert: float
+    bear_kernel: str
 
 
 # reset_obs0 measured as the mean obs[0] of 64 brax MJX resets: 1.25 ± 0.003 (hopper, walker), 0.00 ± 0.06
 # (halfcheetah); gym's resets (D4RL) have the same values.
 ENVS = {
-    "hopper": EnvSpec("hopper", "hopper", 11, 3, 5, 6, 1.25),
-    "walker": EnvSpec("walker", "walker2d", 17, 6, 8, 9, 1.25),
-    "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None, 0.0),
+    "hopper": EnvSpec("hopper", "hopper", 11, 3, 5, 6, 1.25, terminates=True, speed_hi=4.0, joint_speed_hi=10.0,
+                      speed_band=(2.0, 3.0), speed_band_sat=2.0, replay_transitions=402_000, d4rl_random=-20.272305,
+                      d4rl_expert=3234.3, bear_kernel="laplacian"),
+    "walker": EnvSpec("walker", "walker2d", 17, 6, 8, 9, 1.25, terminates=True, speed_hi=6.0, joint_speed_hi=10.0,
+                      speed_band=(2.5, 3.5), speed_band_sat=2.0, replay_transitions=302_000, d4rl_random=1.629008,
+                      d4rl_expert=4592.3, bear_kernel="laplacian"),
+    "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None, 0.0, terminates=False, speed_hi=15.0,
+                           joint_speed_hi=30.0, speed_band=(4.0, 6.0), speed_band_sat=5.0, replay_transitions=202_000,
+                           d4rl_random=-280.178953, d4rl_expert=12135.0, bear_kernel="gaussian"),
 }
 _ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
 

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from ...envs.spec import env_spec
 from ..actor_critic import CriticAgentBase, critic_fields
 from ..base import PolicyInputs
 from ..critic_networks import Critics, TanhGaussianActor
@@ -85,4 +86,4 @@ def best_of_q_policy(actor, critic, n: int):
 def make_bear_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> BEARAgent:
     warmup = cfg.steps // 25 if cfg.pretrain_steps is None else cfg.pretrain_steps
     return BEARAgent(**critic_fields(cfg, obs_dim, act_dim, layers=2, actor_lr=1e-4),
-                     kernel="gaussian" if cfg.env == "halfcheetah" else "laplacian", warmup=warmup)
+                     kernel=env_spec(cfg.env).bear_kernel, warmup=warmup)
