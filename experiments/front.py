@@ -121,8 +121,10 @@ def run(a) -> None:
 def hypervolume(points) -> float:
     """Hypervolume dominated by ``points [n, 2]`` (costs, lower is better) up to the reference point (1, 1),
     clipped into [0, 1] (moocore: it keeps the non-dominated points itself)."""
-    import moocore
-
+    try:
+        import moocore
+    except ImportError:
+        raise SystemExit("the hypervolume needs moocore: pip install -e '.[front]'") from None
     p = np.clip(np.asarray(points, np.float64).reshape(-1, 2), 0.0, 1.0)
     return float(moocore.hypervolume(p, ref=[1.0, 1.0]))
 
