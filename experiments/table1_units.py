@@ -11,7 +11,8 @@ import subprocess
 import numpy as np
 
 from minsubdt_jax.agents.dt.networks import DT_REVISION
-from minsubdt_jax.config import CRITIC_PRESETS, SINGLE_DATASET_AGENTS
+from minsubdt_jax.agents import AGENTS
+from minsubdt_jax.config import CRITIC_PRESETS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 
@@ -36,7 +37,7 @@ def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):
     in each env x dataset, the methods of one agent missing the same seeds, a run of consecutive missing seeds
     each. With ``whole_env`` the env's datasets that miss the same seeds of the same methods are one unit
     (``--dataset a,b,c``: issue 23's whole env in one program), except for an agent that needs a program per
-    dataset (``config.SINGLE_DATASET_AGENTS``: AWR). The lowest missing seed of every cell goes first
+    dataset (``AgentInfo.one_dataset``: AWR). The lowest missing seed of every cell goes first
     (stable: datasets, envs, methods)."""
     units, skipped = [], []
     for d in datasets:
@@ -53,7 +54,7 @@ def plan_units(envs, datasets, methods, seeds, result_path, whole_env=False):
     if whole_env:
         merged = {}  # (env, methods, first, n) -> datasets, in the order asked (AWR's datasets stay apart)
         for first, (d,), e, ms, n in units:
-            alone = ALL_METHODS[ms[0]].agent in SINGLE_DATASET_AGENTS
+            alone = AGENTS[ALL_METHODS[ms[0]].agent].one_dataset
             merged.setdefault((e, ms, first, n) + ((d,) if alone else ()), []).append(d)
         units = [(key[2], tuple(ds), key[0], key[1], key[3]) for key, ds in merged.items()]
     units.sort(key=lambda t: t[0])

@@ -318,6 +318,10 @@ def test_cli_trains_evaluates_and_resumes_critic_agents(tmp_path, small_dataset_
         assert sa == sb == 20
         for x, y in zip(_leaves(a), _leaves(b), strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    # AWR's step reads every stored episode (AgentInfo.one_dataset): two datasets in one program are one error line
+    out = tmp_path / "awr-two"
+    assert main([*SMOKE, "--dataset", f"{small_dataset_path},medium", "--method", "awr", "--out", str(out)]) == 2
+    assert not out.exists()
 
 
 def test_bf16_matmuls_of_every_critic_agent_follow_float32():

@@ -174,7 +174,6 @@ def preset_config(name: str, method: str = Config.method) -> Config:
 
 
 LR_SCHEDULES = ("constant", "cosine")
-SINGLE_DATASET_AGENTS = ("awr",)  # agents whose step reads every stored episode: one dataset per program
 CHOICES = {"env": tuple(ENVS), "preset": tuple(PRESETS), "physics": PHYSICS,
            "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES, "precision": ("f32", "tf32", "bf16")}
 
@@ -194,9 +193,6 @@ def validate(cfg: Config) -> Config:
     agents = {METHODS[m].agent for m in cfg.methods}
     if "" in cfg.datasets or len(set(cfg.datasets)) != len(cfg.datasets):
         raise ValueError(f"--dataset must be one or several (comma-separated, each once) datasets, got {cfg.dataset!r}")
-    if len(cfg.datasets) > 1 and agents & set(SINGLE_DATASET_AGENTS):
-        raise ValueError("AWR's iteration standardises advantages over every stored episode, so its datasets cannot "
-                         "share one program: train them apart")
     if len(agents) > 1:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
     if len({METHODS[m].vector for m in cfg.methods}) > 1:

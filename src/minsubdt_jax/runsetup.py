@@ -13,7 +13,7 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-from .agents import FIXED_STEPS, batch_size_of, make_agent
+from .agents import AGENTS, batch_size_of, make_agent
 from .agents.base import init_seed_states, optimizer_for
 from .config import Config, validate
 from .costs import cost_metrics
@@ -61,7 +61,11 @@ def plan_run(cfg: Config, resume: bool, verbose: bool, metrics) -> RunPlan:
     init_distributed(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
     main = is_main_process()
     out = cfg.run_dir()
-    decays = cfg.lr_schedule != "constant" or methods[0].agent in FIXED_STEPS
+    agent = AGENTS[methods[0].agent]
+    if len(cfg.datasets) > 1 and agent.one_dataset:
+        raise ValueError(f"the {methods[0].agent} agent's step reads every stored episode, so its datasets cannot "
+                         f"share one program: train them apart")
+    decays = cfg.lr_schedule != "constant" or agent.fixed_steps
     if resume and decays and os.path.exists(os.path.join(out, "config.json")):
         with open(os.path.join(out, "config.json")) as f:  # the decay ends at --steps: it may not change
             if json.load(f)["steps"] != cfg.steps:
@@ -153,5 +157,5 @@ def start_run(run: RunPlan, lock: RunLock):
         print(f"{len(run.models)} model(s) ({len(cfg.datasets)} dataset(s) x {len(run.methods)} method(s) x "
               f"{cfg.seeds} seed(s)) in one program; batch split over {run.mesh.size} device(s) in "
               f"{jax.process_count()} process(es): {run.batch_size // run.mesh.size} "
-              f"{'transitions' if hasattr(agent, 'make_step') else 'sequences'} each", flush=True)
+              f"{'transitions' if AGENTS[run.methods[0].agent].transitions else 'sequences'} each", flush=True)
     return agent, tx, state, mngr, start
