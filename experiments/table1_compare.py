@@ -36,6 +36,20 @@ def beats(table: dict, data: dict, m: str) -> tuple[int, int, int]:
     return above_data, above_bc, len(cells)
 
 
+def matched_average(was: dict, now: dict, m: str, label: str, num, change) -> str:
+    """Column ``m``'s average over the cells of ``label`` ("all", "without medium-replay") that today's table has,
+    before → today, and over how many of the earlier cells: while the rerun lands cell by cell the two averages
+    cover the same cells."""
+    keep = (lambda k: not k.startswith("medium-replay/")) if "without medium-replay" in label else (lambda k: True)
+    earlier = [k for k, v in was.items() if keep(k) and v.get(m) is not None]
+    both = [k for k in earlier if m in now.get(k, {})]
+    if not both:
+        return num(sum(was[k][m] for k in earlier) / len(earlier)) if earlier else "–"
+    a = sum(was[k][m] for k in both) / len(both)
+    b = sum(now[k][m]["mean"] for k in both) / len(both)
+    return f"{num(a)} → {change(b, a)}" + ("" if len(both) == len(earlier) else f", {len(both)} of {len(earlier)} cells")
+
+
 def markdown(out: dict) -> str:
     """The report's section *Before the DT fix*, or nothing where no earlier table was kept."""
     old = out.get("before_dt_fix")
@@ -61,9 +75,8 @@ def markdown(out: dict) -> str:
                 f"{num(was.get(m))} → {change(now[m]['mean'], was.get(m))}" if m in now else num(was.get(m))
                 for m in METHODS) + " |")
     for label, av in old["averages"].items():
-        new = out["averages"].get(label, {})
         lines.append(f"| **average ({label})** | | " + " | ".join(
-            f"{num(av.get(m))} → {change(new.get(m, {}).get('mean'), av.get(m))}" for m in METHODS) + " |")
+            matched_average(old["table"], out["table"], m, label, num, change) for m in METHODS) + " |")
     lines += ["", "MinSubDT − DT verdicts, earlier → today (Welch, 2 SE; *Where MinSubDT is behind DT*):", "",
               "| dataset | env | " + " | ".join(f"{METHOD_NAMES[m]} − DT" for m in MINSUBDT_COLUMNS) + " |",
               "|---|---|" + "---|" * len(MINSUBDT_COLUMNS)]

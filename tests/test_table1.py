@@ -416,3 +416,26 @@ def test_report_puts_the_table_before_the_dt_fix_beside_todays(table1, tmp_path)
     assert "| medium | hopper | behind → behind | – → – |" in md  # MinSubDT below DT in both tables
     # the fake data scores 45.0: MinSubDT (50.5) is above it in the one cell of each table; no BC column was trained
     assert "MinSubDT (engg. costs): above the data in 1 of 1 cells, above BC in 0 (earlier: 1 and 0 of 1)." in md
+
+
+def test_before_the_fix_averages_compare_the_same_cells(table1, tmp_path):
+    """While the rerun lands cell by cell, an average before the fix is taken over the cells rerun so far, not over
+    every earlier cell (a 1-cell average beside a 9-cell one read as a +38 change)."""
+    import shutil
+
+    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium", "medium-replay"), runs_root=str(tmp_path / "runs"),
+              results_root=str(tmp_path / "res"), train_fn=lambda cfg, **_: fake_results(cfg), log=lambda *_: None)
+    table1.run_sweep(methods=("dt",), seeds=(0, 1), **kw)
+    res = tmp_path / "res" / "table1"
+    shutil.copytree(res / "smoke", res / "smoke-dt-rev1")
+    for f in (res / "smoke-dt-rev1").glob("*.json"):  # earlier: medium 7 points lower, medium-replay 30
+        r = json.loads(f.read_text())
+        r["eval"]["normalized_score_mean"] -= 30.0 if "medium-replay" in f.name else 7.0
+        f.write_text(json.dumps(r))
+    for f in (res / "smoke").glob("hopper-medium-replay-*.json"):
+        f.unlink()  # today: medium only
+    table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=False)
+    md = (tmp_path / "agg" / "table1.md").read_text().split("## Before the DT fix")[1]
+    now = BASE["dt"] + 0.5
+    assert f"| **average (all)** | | – | – | {now - 7:.1f} → {now:.1f} (+7.0), 1 of 2 cells | – |" in md
+    assert f"| **average (without medium-replay)** | | – | – | {now - 7:.1f} → {now:.1f} (+7.0) | – |" in md
