@@ -102,7 +102,8 @@ def test_evaluate_reproduces_the_run_at_its_default_target_and_writes_beside_it(
 @pytest.mark.parametrize("target, says", [("energy=0.5", "'energy' is not a metric of the run"),
                                           ("x_velocity=1.5", "0 to the margin beta"),
                                           ("x_velocity=nan", "must be finite"),
-                                          ("x_velocity=0,x_velocity=1", "repeated")])
+                                          ("x_velocity=0,x_velocity=1", "repeated"),
+                                          ("0.5", "takes name=value per metric")])
 def test_a_bad_target_is_one_error_line_and_writes_nothing(vec_run, capsys, target, says):
     from minsubdt_jax.evaluate import main
 

@@ -107,8 +107,10 @@ def parse_target(text, method, prep, beta: float):
     not a number."""
     names = [m.name for m in prep.metrics]
     if not method.vector:
-        value = _number(text, "--target")
-        return value
+        return _number(text, "--target")
+    if not isinstance(text, dict) and not all("=" in p for p in str(text).split(",")):
+        raise ValueError(f"--target {text}: {method.name} takes name=value per metric (comma-separated), for some of "
+                         f"{names}")
     pairs = list(text.items()) if isinstance(text, dict) else [p.rpartition("=")[::2] for p in str(text).split(",")]
     bound = beta if method.target_bound == "beta" else 1.0
     token = np.array(prep.target_return, np.float32)
