@@ -168,7 +168,10 @@ def report(a) -> None:
              "`experiments/results/front/*.json`. Costs are lower-is-better, in [0, 1]; the hypervolume is the area "
              f"the points dominate up to (1, 1) in ({', '.join(PAIR)}), computed by moocore. Spearman: over the "
              "target grid, between the target in a metric and the achieved cost in it (mean over seeds; +1: the "
-             "target steers that metric perfectly).", ""]
+             "target steers that metric perfectly). The demos' points are single episodes; a method's point is the "
+             "mean of one target's rollouts (3 seeds x its episodes), so the demos' front holds the spread of single "
+             "episodes and the methods' fronts do not: compare the fronts' shapes in the figure as well as the "
+             "numbers.", ""]
     fig, axes = plt.subplots(1, len(files), figsize=(6 * len(files), 5), squeeze=False)
     for ax, f in zip(axes[0], files):
         with open(os.path.join(RESULTS, f)) as fh:
