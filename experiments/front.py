@@ -88,7 +88,10 @@ def run(a) -> None:
     dirs = train_runs(a, ["vec"])  # the vector methods and their sweeps first, the scalar runs after
     path = os.path.join(RESULTS, cell_name(a) + ".json")
     os.makedirs(RESULTS, exist_ok=True)
-    out = json.load(open(path)) if os.path.exists(path) else {}
+    out = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            out = json.load(f)
     loaded = load_run(dirs["vec"])
     demo = loaded.per_model[0].costs
     out.update({"cell": cell_name(a), "env": a.env, "dataset": a.dataset, "preset": a.preset, "seeds": a.seeds,

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from .agents import batch_size_of, make_agent
+from .agents import batch_size_of
 from .agents.base import PolicyInputs, eval_params, init_seed_states, optimizer_for
 from .config import Config, validate
 from .costs import cost_metrics
@@ -41,9 +41,10 @@ from .evaluation import across_seeds
 from .flags import load_fields
 from .methods import get_method
 from .parallel import make_mesh
-from .pipeline import load, prepare
+from .pipeline import load
 from .program import evaluate_models, program_models
 from .rundir import DATASET_FILE, METRICS_FILE, exit_code, json_text, write_atomic
+from .runsetup import prepare_each, program_agent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,12 +85,8 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
                          f"{source.sha256[:12]}, the run's {recorded['sha256'][:12]})")
     methods = [get_method(m) for m in cfg.methods]
     models = program_models(methods, list(range(cfg.seed, cfg.seed + cfg.seeds)), cfg.datasets)
-    preps = {m.name: prepare(cfg, m, False, source, recorded["dynamics"], metrics) for m in methods
-             if m.features != "learned"}
-    per_model = [preps.get(mo.method.name) or prepare(dataclasses.replace(cfg, seed=mo.seed), mo.method, False,
-                                                      source, recorded["dynamics"], metrics) for mo in models]
-    agent = make_agent(methods[0].agent, cfg, source.data.obs_dim, source.data.act_dim,
-                       max(cfg.episode_length, source.data.max_len), len(chosen) if methods[0].vector else 0)
+    _, per_model = prepare_each(cfg, models, [source], recorded["dynamics"], metrics, verbose=False)
+    agent = program_agent(cfg, methods, [source], len(chosen))
     template = init_seed_states(agent, optimizer_for(agent, cfg), [mo.seed for mo in models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(os.path.abspath(paths["checkpoints"]),
                                  options=ocp.CheckpointManagerOptions(create=False))

@@ -62,9 +62,7 @@ def _total(data, sub, costs):
 def _per_metric(values):
     """``[N, T, K]``: ``-values [N, K]`` at each trajectory's last step, 0 elsewhere (one reward per metric)."""
     def rewards(data, sub, costs):
-        v = np.asarray(values(sub, costs), np.float32)
-        last = np.arange(data.max_len)[None, :] == (data.lengths - 1)[:, None]
-        return np.where(last[..., None], -v[:, None, :], 0.0).astype(np.float32)
+        return np.asarray(surrogate_rewards(np.asarray(values(sub, costs), np.float32), data.lengths, data.max_len))
     return rewards
 
 

@@ -24,6 +24,7 @@ from .methods import Method
 from .parallel import available_bytes, replicate
 from .pipeline import Prepared
 
+
 @dataclass(frozen=True)
 class Model:
     """One model of a program: its method and seed, and its dataset where the program trains several (else None)."""
@@ -95,8 +96,9 @@ def stack_models(per_model: list[Prepared]):
 
 def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared], mesh, episodes: int,
                     physics: str = "auto", dynamics: str = "brax") -> list[dict]:
-    """Evaluate the M trained models (``params [M, ...]``, ``models``: their :class:`Model` records) on ``episodes`` episodes each, in one batched program per dataset (``physics``; in MJX the episodes
-    split over ``mesh``) under ``dynamics``, against that dataset's demonstrations; a model of seed s has its
+    """Evaluate the M trained models (``params [M, ...]``, ``models``: their :class:`Model` records) on
+    ``episodes`` episodes each, in one batched program per dataset (``physics``; in MJX the episodes split over
+    ``mesh``) under ``dynamics``, against that dataset's demonstrations; a model of seed s has its
     episodes seeded ``s + 10000``. One summary dict per model, with its method and seed (and dataset)."""
     sources = distinct_sources(per_model)
     if len(sources) > 1:

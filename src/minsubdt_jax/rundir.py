@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .atomic import current_umask, write_atomic  # noqa: F401  (the run's writes; re-exported)
+from .atomic import write_atomic  # noqa: F401  (the run's writes; re-exported)
 
 DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 

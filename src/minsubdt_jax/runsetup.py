@@ -105,20 +105,37 @@ def prepare_models(run: RunPlan, metrics):
     """``(preps, per_model, data, data_axis)``: each model's prepared data (one per dataset and method, and per seed
     where the features are learned: they depend on the seed) and the program's stacked sampler arrays; the data
     is checked to be the same in every process and, on resume, the run's."""
-    cfg, names = run.cfg, run.cfg.datasets
-    preps, per_model = {}, []
-    for mo in run.models:
-        d = mo.dataset or names[0]
-        key = (d, mo.method.name, mo.seed if mo.method.features == "learned" else None)
-        if key not in preps:
-            preps[key] = prepare(dataclasses.replace(cfg, seed=mo.seed, dataset=d), mo.method, run.verbose,
-                                 run.sources[names.index(d)], run.dynamics, metrics)
-        per_model.append(preps[key])
+    preps, per_model = prepare_each(run.cfg, run.models, run.sources, run.dynamics, metrics, run.verbose)
     data, data_axis = stack_models(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
                                  "the training data (every process must load the same dataset)")
     check_same_data(run.out, _sha256(run), run.resume)
     return preps, per_model, data, data_axis
+
+
+def prepare_each(cfg: Config, models: list, sources: list, dynamics: str, metrics, verbose: bool):
+    """``(preps, per_model)``: the prepared data of each model of ``models`` on ``sources`` (one per entry of
+    ``cfg.datasets``), one :class:`~minsubdt_jax.pipeline.Prepared` per dataset and method, and per seed where the
+    features are learned (they depend on the seed), shared by the models that have the same."""
+    names = cfg.datasets
+    preps, per_model = {}, []
+    for mo in models:
+        d = mo.dataset or names[0]
+        key = (d, mo.method.name, mo.seed if mo.method.features == "learned" else None)
+        if key not in preps:
+            preps[key] = prepare(dataclasses.replace(cfg, seed=mo.seed, dataset=d), mo.method, verbose,
+                                 sources[names.index(d)], dynamics, metrics)
+        per_model.append(preps[key])
+    return preps, per_model
+
+
+def program_agent(cfg: Config, methods: list, sources: list, n_metrics: int):
+    """The agent of a program of ``methods`` on ``sources``, sized for their data and longest episode; a DT with a
+    return token per metric (``n_metrics`` of them) for a vector method."""
+    data = sources[0].data
+    return make_agent(methods[0].agent, cfg, data.obs_dim, data.act_dim,
+                      max([cfg.episode_length] + [src.data.max_len for src in sources]),
+                      return_dim=n_metrics if methods[0].vector else 0)
 
 
 def _sha256(run: RunPlan) -> str:
@@ -141,10 +158,7 @@ def start_run(run: RunPlan, lock: RunLock):
             record(run.sources[0]) if len(run.sources) == 1 else
             {"sha256": _sha256(run), "dynamics": run.dynamics, "datasets": [record(src) for src in run.sources]},
             indent=2))
-    dataset = run.sources[0].data
-    agent = make_agent(run.methods[0].agent, cfg, dataset.obs_dim, dataset.act_dim,
-                       max([cfg.episode_length] + [src.data.max_len for src in run.sources]),
-                       return_dim=len(run.chosen) if run.methods[0].vector else 0)
+    agent = program_agent(cfg, run.methods, run.sources, len(run.chosen))
     tx = optimizer_for(agent, cfg)
     state = init_seed_states(agent, tx, [mo.seed for mo in run.models], ema=cfg.ema_decay > 0)
     mngr = ocp.CheckpointManager(_ckpt_dir(out), options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))

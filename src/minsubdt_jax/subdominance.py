@@ -145,17 +145,19 @@ def surrogate_rewards(min_subdom, lengths, max_len: int | None = None):
     """Surrogate rewards ``r'_t``: ``-min_subdom`` at each trajectory's last step ``T = length - 1``, else 0.
 
     Args:
-      min_subdom: ``[N]`` minimum subdominance of each trajectory (eq. 2).
+      min_subdom: ``[N]`` minimum subdominance of each trajectory (eq. 2), or ``[N, K]``: one value per metric
+        (eq. 2's per-metric terms, ``MinSubdominance.per_feature``), paid alike.
       lengths: ``[N]`` int, number of valid steps of each trajectory (>= 1).
       max_len: padded time length T; defaults to ``max(lengths)``.
     Returns:
-      ``[N, T]`` rewards, 0 on padding.
+      ``[N, T]`` (``[N, T, K]``) rewards, 0 on padding.
     """
     lengths = jnp.asarray(lengths)
+    v = jnp.asarray(min_subdom)
     if max_len is None:
         max_len = int(np.max(np.asarray(lengths)))
-    t = jnp.arange(max_len)[None, :]
-    return jnp.where(t == lengths[:, None] - 1, -jnp.asarray(min_subdom)[:, None], 0.0)
+    last = jnp.arange(max_len)[None, :] == lengths[:, None] - 1
+    return jnp.where(last.reshape(last.shape + (1,) * (v.ndim - 1)), -v[:, None], 0.0)
 
 
 def returns_to_go(rewards, lengths):

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 
 from .losses import action_loss
 from .networks import DecisionTransformer
-from .policy import dt_policy, empty_context
+from .policy import dt_policy, empty_context, return_shape
 
 
 @dataclass(frozen=True)
@@ -37,11 +37,8 @@ class DTAgent:
     def init_params(self, key):
         K = self.context_len
         return self.model.init(key, jnp.zeros((1, K, self.obs_dim)), jnp.zeros((1, K, self.act_dim)),
-                               jnp.zeros((1, K) + self._r), jnp.zeros((1, K), jnp.int32), jnp.ones((1, K), bool))
-
-    @property
-    def _r(self) -> tuple:
-        return (self.return_dim,) if self.return_dim else ()
+                               jnp.zeros((1, K) + return_shape(self.return_dim)), jnp.zeros((1, K), jnp.int32),
+                               jnp.ones((1, K), bool))
 
     def loss(self, params, batch, rng):
         if self.precision == "tf32":  # read when the step is traced

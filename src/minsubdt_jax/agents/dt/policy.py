@@ -30,11 +30,15 @@ class Context:
     mask: jax.Array
 
 
+def return_shape(return_dim: int) -> tuple:
+    """The trailing shape of a step's return token: ``()`` for one return, ``(R,)`` for one per metric."""
+    return (return_dim,) if return_dim else ()
+
+
 def empty_context(num_episodes: int, context_len: int, obs_dim: int, act_dim: int, return_dim: int = 0) -> Context:
     n, k = num_episodes, context_len
-    r = (return_dim,) if return_dim else ()
-    return Context(jnp.zeros((n, k, obs_dim)), jnp.zeros((n, k, act_dim)), jnp.zeros((n, k) + r),
-                   jnp.zeros((n, k), jnp.int32), jnp.zeros((n, k), bool))
+    return Context(jnp.zeros((n, k, obs_dim)), jnp.zeros((n, k, act_dim)),
+                   jnp.zeros((n, k) + return_shape(return_dim)), jnp.zeros((n, k), jnp.int32), jnp.zeros((n, k), bool))
 
 
 @functools.lru_cache(maxsize=None)
