@@ -30,14 +30,12 @@ import time
 import jax
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-from bench_train_step import synthetic_dataset  # noqa: E402
+from bench_train_step import synthetic_dataset  # beside this file (a script's folder is on its path)
 
-from minsubdt_jax.agents import batch_size_of, make_agent  # noqa: E402
-from minsubdt_jax.agents.base import init_state, make_train_chunk, optimizer_for  # noqa: E402
-from minsubdt_jax.config import PRESETS  # noqa: E402
-from minsubdt_jax.data import sampler_data  # noqa: E402
+from minsubdt_jax.agents import batch_size_of, make_agent
+from minsubdt_jax.agents.base import init_state, make_train_chunk, optimizer_for
+from minsubdt_jax.config import PRESETS
+from minsubdt_jax.data import sampler_data
 
 # name -> (agent, preset whose fields it takes)
 AGENTS = {"dt-cpu": ("dt", "cpu"), "dt-paper": ("dt", "paper"), "bc-mlp": ("mlp", "cpu"), "iql": ("iql", "cpu"),

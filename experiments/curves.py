@@ -30,9 +30,9 @@ import sys
 
 import numpy as np
 
+from curves_report import RESULTS, plot, report  # beside this file (a script's folder is on its path)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-from curves_report import RESULTS, plot, report  # noqa: E402
 DEFAULT_METHODS = "minsubdt,dt"
 DEFAULT_STEPS = 20_000
 MODELS = {"cpu": "cpu", "paper": "paper"}  # model size -> the preset whose DT and optimiser it takes

@@ -85,24 +85,18 @@ def trend(steps: np.ndarray, scores: np.ndarray) -> tuple[float, float]:
     return b * span, se * span
 
 
-POOL_KEYS = ("env", "dataset", "dataset_transitions", "dataset_seed", "episode_length", "steps", "context_len",
-             "embed_dim", "n_layers", "n_heads", "dropout", "learning_rate", "weight_decay", "warmup_steps",
-             "grad_clip", "batch_size", "lr_schedule", "ema_decay", "precision", "costs", "beta", "rtg_scale",
-             "target_return", "alpha_max", "critic_batch_size")  # what a pool's files share (an older file's
-# missing field: its default, which it ran with)
-CRITIC_POOL_KEYS = ("discount", "tau", "ac_hidden", "ac_layers", "actor_lr", "critic_lr", "iql_expectile", "iql_beta",
-                    "td3bc_alpha", "cql_alpha", "cql_actions", "brac_alpha", "pretrain_steps", "mlp_hidden",
-                    "mlp_layers")  # and a file of a critic or MLP agent's too (a DT's ignores them)
-
-
 def pool_key(c: dict, default: dict) -> str:
-    """What a curve file must share with another to pool their seeds: the data's hash and :data:`POOL_KEYS`, and
-    :data:`CRITIC_POOL_KEYS` where one of its methods is not a DT (BRAC-v at alpha 1 and 3 are two settings)."""
-    from minsubdt_jax.config import METHODS
+    """What a curve file must share with another to pool their seeds: the data's hash, the DT's revision where a DT
+    trained, the env and dataset, and every config field that changes what its agents learn
+    (``minsubdt_jax.agents.result_fields``: BRAC-v at alpha 1 and 3 are two settings, a DT's file ignores the
+    critics' fields) but the final evaluation's size (a curve reads the periodic ones). An older file's missing
+    field counts at its default, which it ran with."""
+    from minsubdt_jax.agents import result_fields
+    from minsubdt_jax.methods import METHODS
 
-    methods = c["config"].get("method", default["method"]).split(",")
-    keys = POOL_KEYS + (CRITIC_POOL_KEYS if any(METHODS[m].agent != "dt" for m in methods) else ())
-    revision = [c.get("dt_revision", 1)] if any(METHODS[m].agent == "dt" for m in methods) else []  # the DT's code
+    agents = {METHODS[m].agent for m in c["config"].get("method", default["method"]).split(",")}
+    keys = sorted(frozenset({"env", "dataset"}).union(*(result_fields(a) for a in agents)) - {"eval_episodes"})
+    revision = [c.get("dt_revision", 1)] if "dt" in agents else []  # the DT's code
     return json.dumps([c["dataset"]["sha256"]] + revision + [c["config"].get(k, default[k]) for k in keys])
 
 
@@ -168,11 +162,11 @@ def plot(curve: dict, png: str) -> None:
 
 def model_of(c: dict) -> str:
     """What trained: the DT's size and optimiser, or the critic agents at their references' settings."""
-    from minsubdt_jax.agents import CRITIC_AGENTS
+    from minsubdt_jax.agents import AGENTS
     from minsubdt_jax.methods import METHODS
 
     agents = sorted({METHODS[m].agent for m in c["method"].split(",")})
-    if set(agents) <= set(CRITIC_AGENTS):
+    if all(AGENTS[a].transitions for a in agents):
         return (f"{', '.join(agents)} at their references' settings (docs/critics.md), batch "
                 f"{c.get('critic_batch_size', 256)} transitions")
     return (f"DT {c['embed_dim']}x{c['n_layers']}, K={c['context_len']}, lr {c['learning_rate']:g} "

@@ -44,7 +44,8 @@ def cell_name(a) -> str:
 
 def train_runs(a, names) -> dict:
     """Train (or resume, or skip when finished) the runs ``names`` of a cell; their directories."""
-    from minsubdt_jax.config import preset_config, validate
+    from minsubdt_jax.agents import preset_config
+    from minsubdt_jax.config import validate
     from minsubdt_jax.rundir import checkpoint_steps
     from minsubdt_jax.train import train
 

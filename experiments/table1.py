@@ -38,11 +38,11 @@ import numpy as np
 
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # table1_report beside this file
-from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,  # noqa: E402
+# its siblings, beside it: a script's folder is on its path (the tests': pyproject's pythonpath)
+from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,
                            data_files, markdown, plot_costs, versus_dt)
-import table1_compare  # noqa: E402
-from table1_units import (check_critic_settings, check_not_stale, commit_results, compact,  # noqa: E402,F401
+import table1_compare
+from table1_units import (check_critic_settings, check_not_stale, commit_results, compact,  # noqa: F401
                           curves_from_results, model_curve, per_seed_results, plan_units, programs_of, run_name,
                           seed_runs)
 
@@ -73,7 +73,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     lowest missing seed of every cell goes first."""
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
-    from minsubdt_jax.config import preset_config
+    from minsubdt_jax.agents import preset_config
     from minsubdt_jax.rundir import checkpoint_steps, write_atomic
 
     check_critic_settings(preset, methods)  # before anything is written

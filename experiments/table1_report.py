@@ -7,15 +7,19 @@ import os
 
 import numpy as np
 
-from minsubdt_jax.config import CRITIC_PRESETS, PRESETS
+from minsubdt_jax.agents import AGENTS
+from minsubdt_jax.config import PRESETS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 ENVS = ("halfcheetah", "hopper", "walker")
 DATASETS = ("medium-expert", "medium", "medium-replay")
 METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
-# the critic agents' columns (the seed's CQL among them, and MinSubDT's surrogate reward under IQL): shown once run
-CRITIC_METHODS = ("cql", "bear", "brac-v", "awr", "iql", "td3bc", "minsubdt-iql", "minsubdt-td3bc", "minsubdt-cql",
-                  "minsubdt-bear", "minsubdt-brac-v", "minsubdt-awr")
+# the critic agents' columns, shown once run: the seed's (in its order, PUBLISHED_BASELINES below), then every other
+# method of an agent that trains on transitions (AgentInfo.transitions), MinSubDT's surrogate reward under each among
+# them, in minsubdt_jax.methods' order
+SEED_BASELINES = ("cql", "bear", "brac-v", "awr")
+CRITIC_METHODS = SEED_BASELINES + tuple(m for m, x in ALL_METHODS.items()
+                                        if AGENTS[x.agent].transitions and m not in SEED_BASELINES)
 COLUMNS = METHODS + CRITIC_METHODS
 MINSUBDT_COLUMNS = ("minsubdt", "minsubdt-learned")  # the columns the report holds against DT's
 METHOD_NAMES = {m: ALL_METHODS[m].label for m in COLUMNS}
@@ -38,7 +42,7 @@ PUBLISHED = {
 # The seed's other columns (the DT paper's Table 2: CQL from the CQL paper, BEAR, BRAC-v and AWR from the D4RL
 # paper; gym MuJoCo, D4RL v0 data): CQL, BEAR, BRAC-v, AWR per (dataset, env)
 PUBLISHED_BASELINES = {
-    (d, e): dict(zip(("cql", "bear", "brac-v", "awr"), v)) for (d, e), v in {
+    (d, e): dict(zip(SEED_BASELINES, v)) for (d, e), v in {
         ("medium-expert", "halfcheetah"): (62.4, 53.4, 41.9, 52.7),
         ("medium-expert", "hopper"): (111.0, 96.3, 0.8, 27.1),
         ("medium-expert", "walker"): (98.7, 40.1, 81.6, 53.8),
@@ -118,11 +122,11 @@ def _versus_lines(vs: dict) -> list[str]:
 
 
 def _critic_settings(preset: str, methods) -> list[str]:
-    """A line per critic agent with a column: the setting its own curve chose at ``preset`` (``CRITIC_PRESETS``)."""
-    own = CRITIC_PRESETS.get(preset, {})
+    """A line per critic agent with a column: the setting its own curve chose at ``preset`` (``AgentInfo.presets``)."""
+    own = {a: info.presets[preset] for a, info in AGENTS.items() if info.presets.get(preset)}
     agents = sorted({ALL_METHODS[m].agent for m in methods if m in CRITIC_METHODS} & set(own))
     return [f"Critic columns train at their own `{preset}` setting, chosen by their own 3-seed curves "
-            "(`minsubdt_jax.config.CRITIC_PRESETS`, [docs/convergence.md](../../docs/convergence.md)): "
+            "(`minsubdt_jax.agents.AGENTS`' presets, [docs/convergence.md](../../docs/convergence.md)): "
             + "; ".join(f"{a}: {own[a]['steps']:,} steps at its reference's rates"
                         + (f", evaluated with an EMA {own[a]['ema_decay']} of its parameters" if own[a].get("ema_decay")
                            else "") for a in agents) + ".", ""
@@ -196,7 +200,7 @@ def markdown(out: dict) -> str:
             for m in methods) + " |")
     absent = [m for m in CRITIC_METHODS if not m.startswith("minsubdt-") and m not in methods]
     if absent:
-        ready = [METHOD_NAMES[m] for m in absent if ALL_METHODS[m].agent in CRITIC_PRESETS.get(out["preset"], {})]
+        ready = [METHOD_NAMES[m] for m in absent if out["preset"] in AGENTS[ALL_METHODS[m].agent].presets]
         lines += ["", f"Critic agents without a result at `{out['preset']}` (every cell '–'): "
                   f"{', '.join(METHOD_NAMES[m] for m in absent)}. "
                   "One gets a column once its score curve flattens within ~10 CPU-minutes per model here (issue 25); "

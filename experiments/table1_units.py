@@ -11,8 +11,7 @@ import subprocess
 import numpy as np
 
 from minsubdt_jax.agents.dt.networks import DT_REVISION
-from minsubdt_jax.agents import AGENTS
-from minsubdt_jax.config import CRITIC_PRESETS
+from minsubdt_jax.agents import AGENTS, missing_presets, result_fields
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 
@@ -21,11 +20,9 @@ def run_name(env, dataset, method, seed) -> str:
 
 
 def check_critic_settings(preset: str, methods) -> None:
-    """Raise ValueError if a critic method of ``methods`` has no setting of its own at ``preset`` where the preset
-    gives critic agents their own (``minsubdt_jax.config.CRITIC_PRESETS``): the DT family's would be no result."""
-    own = CRITIC_PRESETS.get(preset)
-    agents = {m: ALL_METHODS[m].agent for m in methods}
-    unset = [] if own is None else [m for m, a in agents.items() if a != "dt" and a not in own]
+    """Raise ValueError if a method of ``methods`` has no setting of its own at ``preset`` where the preset gives
+    agents their own (``AgentInfo.presets``, ``minsubdt_jax.agents``): the DT family's would be no result."""
+    unset = missing_presets(preset, methods)
     if unset:
         raise ValueError(f"--preset {preset} has no setting for {', '.join(unset)}: no score curve has shown its "
                          f"agent flat within ~10 CPU-minutes per model here (docs/convergence.md); it waits for a GPU")
@@ -177,28 +174,18 @@ def programs_of(rows: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
-# config fields that say where and how a run was trained, not what was trained: a result file that differs from
-# the preset only in these is still the preset's result (programs of several models, chunking, periodic curves,
-# and who steps the same equations: C MuJoCo or MJX, README "Physics")
-RUN_ONLY_FIELDS = frozenset({"env", "dataset", "method", "seed", "seeds", "out", "preset", "chunk_steps", "physics",
-                             "physics_threads", "logger", "devices", "coordinator_address", "num_processes",
-                             "process_id", "eval_every", "eval_episodes_periodic"})
-# the DT family's network and optimiser fields, which a critic agent does not read (it has its own, agents/*/)
-DT_ONLY_FIELDS = frozenset({"context_len", "embed_dim", "n_layers", "n_heads", "dropout", "learning_rate",
-                            "weight_decay", "warmup_steps", "grad_clip"})
-
-
 def stale_fields(saved: dict, expected) -> dict:
     """``{field: (saved, expected)}`` for each config field that changes a model's result whose value in a result
     file's ``config`` (``saved``) is not the one the sweep would train with now (``expected``: a ``Config``). A
-    field the file predates counts at its default (the code before it behaved so); :data:`RUN_ONLY_FIELDS`, and
-    for a critic agent :data:`DT_ONLY_FIELDS`, are not compared."""
-    skip = RUN_ONLY_FIELDS | (DT_ONLY_FIELDS if ALL_METHODS[expected.method].agent != "dt" else frozenset())
+    field the file predates counts at its default (the code before it behaved so). Only the fields that change the
+    agent's results are compared (``minsubdt_jax.agents.result_fields``: not where or how it ran, nor other agents'
+    settings)."""
+    compared = result_fields(ALL_METHODS[expected.method].agent)
     out = {}
     for f in dataclasses.fields(expected):
         want, default = getattr(expected, f.name), f.default
         have = saved.get(f.name, default)
-        if f.name not in skip and have != want:
+        if f.name in compared and have != want:
             out[f.name] = (have, want)
     return out
 

@@ -11,7 +11,8 @@ import pytest
 
 from minsubdt_jax.agents import AGENTS, make_agent
 from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk
-from minsubdt_jax.config import PRESETS, parse_args, validate
+from minsubdt_jax.config import PRESETS, validate
+from minsubdt_jax.train import parse_args
 from minsubdt_jax.costs import engineered_costs
 from minsubdt_jax.data import Trajectories, sampler_data
 from minsubdt_jax.methods import METHODS, RETURNS_ALIASES, get_method
@@ -142,3 +143,37 @@ def test_cosine_schedule_and_parameter_average_against_hand_computation():
     for a, b in zip(jax.tree.leaves(eval_params(state)), jax.tree.leaves(ema)):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     assert not np.allclose(jax.tree.leaves(eval_params(state))[0], jax.tree.leaves(state.params)[0])
+
+
+def test_each_agent_declares_exactly_the_agent_settings_it_reads():
+    """``AgentInfo.fields`` decides which config fields the experiments compare (a stale result, curve files that
+    pool): an agent that read another agent's setting without declaring it would let two different results count as
+    one. Recorded reads of a config while the agent is built, sized and its optimiser traced (a cosine schedule,
+    which reads every schedule field; a critic agent's rates are read as it is built) must hit, among the fields of agents' settings, exactly the declared ones."""
+    from minsubdt_jax.agents import batch_size_of
+    from minsubdt_jax.agents.base import optimizer_for
+
+    cfg = dataclasses.replace(PRESETS["smoke"], lr_schedule="cosine")
+    agent_only = frozenset().union(*(a.fields for a in AGENTS.values()))
+    for name, info in AGENTS.items():
+        seen = set()
+
+        class Reads:
+            def __getattr__(self, field):
+                seen.add(field)
+                return getattr(cfg, field)
+
+        agent = make_agent(name, Reads(), 17, 6, 1000)
+        batch_size_of(name, Reads())
+        tx = optimizer_for(agent, Reads())
+        params = jax.eval_shape(agent.init_params, jax.random.key(0))
+        if info.transitions:  # a critic agent's rates are read when it is built; its networks update one by one
+            jax.eval_shape(tx.init, params)
+        else:
+            jax.eval_shape(lambda p: tx.update(p, tx.init(p), p), params)
+        assert seen & agent_only == info.fields, (name, sorted(seen & agent_only), sorted(info.fields))
+    from minsubdt_jax.runsetup import check_agent_settings  # the run refuses a setting its agent does not read
+
+    with pytest.raises(ValueError, match="--precision bf16 is for the DT and the critic agents"):
+        check_agent_settings(dataclasses.replace(cfg, method="bc-mlp", precision="bf16"), "mlp")
+    assert check_agent_settings(dataclasses.replace(cfg, method="iql", precision="bf16"), "iql") is AGENTS["iql"]

@@ -291,7 +291,7 @@ def test_cli_trains_evaluates_and_resumes_critic_agents(tmp_path, small_dataset_
     chunk): a run directory like the DT's, evaluated, each loss logged per chunk; a run killed after its first chunk
     (10 of 20 steps) and resumed ends at the uninterrupted run's parameters. The other critic agents run through the
     same loop and step (their bandit and routing tests above); a CLI run each would cost the suite ~10 s apiece."""
-    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.train import parse_args
     from minsubdt_jax.train import main, train
 
     from test_train_cli import SMOKE, _leaves, _params

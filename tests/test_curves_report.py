@@ -1,7 +1,6 @@
 """experiments/curves_report.py: the fitted change over a curve's last third against a second method, a least-squares
 fit with a dummy column per seed and its covariance sigma^2 (X^T X)^-1."""
 
-import importlib.util
 import json
 import os
 
@@ -11,11 +10,9 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _report():
-    path = os.path.join(ROOT, "experiments", "curves_report.py")
-    spec = importlib.util.spec_from_file_location("curves_report", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    import curves_report  # experiments/ (pyproject's pythonpath)
+
+    return curves_report
 
 
 def test_trend_is_the_seed_fixed_effects_least_squares_slope():
@@ -77,10 +74,8 @@ def test_a_tagged_curve_keeps_its_own_file(tmp_path, capsys):
     """``--tag`` (a run on another machine's recording) names its own curve file, so it cannot overwrite this
     machine's curve of the same flags; the flags that name a curve still do. The curve keeps the run's own
     platform record and its training seconds summed over the chunks."""
-    path = os.path.join(ROOT, "experiments", "curves.py")
-    spec = importlib.util.spec_from_file_location("curves_cli", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    import curves as mod  # experiments/ (pyproject's pythonpath)
+
     flags = ["run", "--env", "walker", "--dataset", "medium", "--model", "paper", "--steps", "10000",
              "--warmup", "500", "--lr-schedule", "cosine", "--ema", "0.999"]
     plain = mod.name_of(mod.build_parser().parse_args(flags))

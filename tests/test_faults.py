@@ -75,7 +75,7 @@ def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_
     """Ctrl-C used to print a 42-line traceback. During training it finishes the current chunk and its checkpoint,
     then stops with one line that gives the resume command (exit 130, no results.json); that command finishes the
     run. The key press itself is acknowledged at once (the chunk may take minutes). Here the SIGINT arrives while the first of two 10-step chunks is being logged."""
-    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.train import parse_args
     from minsubdt_jax.rundir import Interrupted, exit_code
     from minsubdt_jax.train import main, train
 
@@ -250,7 +250,7 @@ def test_a_resume_never_changes_the_cost_metrics_a_run_trains_on(tmp_path, small
     error line, and through the library with the same metrics it goes on."""
     import dataclasses
 
-    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.train import parse_args
     from minsubdt_jax.costs import CostMetric
     from minsubdt_jax.train import train
 
@@ -275,7 +275,7 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     and --horizon; TensorBoard tags every per-model list `<metric>/<method>-s<seed>` (the loss was tagged
     `loss_per_seed/0`); the learning curve's figure is titled with env, dataset and method."""
     from minsubdt_jax import loggers, rundir
-    from minsubdt_jax.config import parse_args
+    from minsubdt_jax.train import parse_args
     from minsubdt_jax.data.__main__ import main as data_main
     from minsubdt_jax.methods import METHODS
 

@@ -127,19 +127,14 @@ def test_a_gymnasium_v4_file_trains_and_is_evaluated_in_d4rl_dynamics(tmp_path):
     """A D4RL-layout file recorded by gymnasium's own Hopper-v4 (none of our attributes): its recorded states
     replay under the d4rl dynamics, so the run evaluates there and normalises with D4RL's references."""
     import dataclasses
-    import importlib.util
-    import os
 
     from minsubdt_jax.config import PRESETS, validate
     from minsubdt_jax.references import reference_returns
     from minsubdt_jax.train import train
 
     pytest.importorskip("gymnasium")
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    spec = importlib.util.spec_from_file_location("gymnasium_dataset", os.path.join(root, "experiments",
-                                                                                    "gymnasium_dataset.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    import gymnasium_dataset as mod  # experiments/ (pyproject's pythonpath)
+
     path = str(tmp_path / "hopper-v4-random.hdf5")
     mod.record("hopper", 32, path, policy="random", horizon=60)
     cfg = dataclasses.replace(PRESETS["smoke"], env="hopper", dataset=path, episode_length=60,

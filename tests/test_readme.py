@@ -80,8 +80,8 @@ class _Parsed(Exception):
 
 def test_every_readme_command_parses(monkeypatch):
     """Each command of ours in the README's shell blocks gets through its parser: the training CLI's through
-    ``config.parse_args`` (with its checks), the others' argparse (stopped right after parsing: nothing runs)."""
-    from minsubdt_jax.config import parse_args
+    ``train.parse_args`` (with its checks), the others' argparse (stopped right after parsing: nothing runs)."""
+    from minsubdt_jax.train import parse_args
 
     commands = command_lines(readme())
     assert len(commands) >= 20 and any(c[2:3] == ["minsubdt_jax.evaluate"] for c in commands)

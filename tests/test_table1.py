@@ -2,7 +2,6 @@
 models into one result file each, and aggregating partial results (a fake trainer)."""
 
 import dataclasses
-import importlib.util
 import json
 import os
 
@@ -10,7 +9,7 @@ import numpy as np
 import pytest
 
 from minsubdt_jax.agents.dt.networks import DT_REVISION
-from minsubdt_jax.config import preset_config
+from minsubdt_jax.agents import preset_config
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BASE = {"awr": 10.0, "minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc": 30.0, "cql": 20.0, "iql": 55.0, "minsubdt-iql": 45.0}
@@ -18,10 +17,9 @@ BASE = {"awr": 10.0, "minsubdt": 50.0, "minsubdt-learned": 40.0, "dt": 60.0, "bc
 
 @pytest.fixture(scope="module")
 def table1():
-    spec = importlib.util.spec_from_file_location("table1", os.path.join(ROOT, "experiments", "table1.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    import table1  # experiments/ (pyproject's pythonpath)
+
+    return table1
 
 
 def fake_results(cfg):
@@ -230,13 +228,12 @@ def test_critic_columns_train_by_agent_and_show_beside_the_seeds_cql(table1, tmp
 def test_study_trains_each_agent_family_at_its_own_setting_and_refuses_an_unset_critic(table1, tmp_path, capsys,
                                                                                        monkeypatch):
     """At ``--preset study`` the DT family's program gets the study preset (cosine, EMA, 10k steps) and a critic
-    agent the setting its own curve chose (``CRITIC_PRESETS``, here one given to IQL); a critic agent without one is
-    one error before anything trains or is written, from the command line and from ``run_sweep``."""
-    from minsubdt_jax import config
+    agent the setting its own curve chose (``AgentInfo.presets``, here one given to IQL); a critic agent without one
+    is one error before anything trains or is written, from the command line and from ``run_sweep``."""
+    from minsubdt_jax.agents import AGENTS
     from minsubdt_jax.config import PRESETS
 
-    monkeypatch.setitem(config.CRITIC_PRESETS, "study", {"iql": dict(steps=1234, lr_schedule="constant",
-                                                                      ema_decay=0.0)})
+    monkeypatch.setitem(AGENTS["iql"].presets, "study", dict(steps=1234, lr_schedule="constant", ema_decay=0.0))
     cfgs = []
 
     def fake_train(cfg, resume=False, verbose=False):

@@ -284,7 +284,8 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     and nothing is written. Every field has a help text (from its comment in config.py)."""
     import dataclasses
 
-    from minsubdt_jax.config import PRESETS, Config, parse_args
+    from minsubdt_jax.config import PRESETS, Config
+    from minsubdt_jax.train import parse_args
     from minsubdt_jax.flags import field_help
 
     cfg = dataclasses.replace(PRESETS["cpu"], env="hopper", seeds=2, costs="x_velocity,energy", ema_decay=0.99,
@@ -296,9 +297,9 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     (tmp_path / "c.yaml").write_text("preset: smoke\nsteps: 5\nlearning_rate: 1\n")
     assert parse_args(["--config", str(tmp_path / "c.yaml")])[0] == dataclasses.replace(PRESETS["smoke"], steps=5,
                                                                                          learning_rate=1.0)
-    from minsubdt_jax import config  # a critic agent with its own study setting gets it; --steps overrides it
+    from minsubdt_jax.agents import AGENTS  # a critic agent with its own study setting gets it; --steps overrides it
 
-    monkeypatch.setitem(config.CRITIC_PRESETS, "study", {"iql": dict(steps=1234, lr_schedule="constant")})
+    monkeypatch.setitem(AGENTS["iql"].presets, "study", dict(steps=1234, lr_schedule="constant", ema_decay=0.999))
     study_iql = parse_args(["--preset", "study", "--method", "iql"])[0]
     assert (study_iql.steps, study_iql.lr_schedule, study_iql.ema_decay) == (1234, "constant", 0.999)
     assert parse_args(["--preset", "study", "--method", "iql", "--steps", "9"])[0].steps == 9

@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
 from dataclasses import dataclass
 
-from .costs import check_costs, describe_metrics
-from .flags import add_flags, load_fields
+from .costs import check_costs
 from .envs import DYNAMICS, ENVS, PHYSICS
 from .loggers import logger_names
-from .methods import METHODS, RETURNS_ALIASES
+from .methods import METHODS
 from .parallel import distributed_settings
 
 
@@ -156,21 +154,13 @@ PRESETS = {
     "paper": Config(preset="paper", steps=100_000, chunk_steps=1000, eval_episodes=100, eval_every=10_000),
 }
 
-# per agent family (issue 25): a critic agent's preset values, chosen by its own 3-seed curve (walker medium, EMA),
-# at its reference's rates. At `study` an agent without an entry has not converged here: table1.py refuses it
-_CRITIC_STUDY = dict(chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)
-CRITIC_PRESETS = {"study": {"iql": dict(_CRITIC_STUDY, steps=60_000), "td3bc": dict(_CRITIC_STUDY, steps=100_000),
-                             # 200 iterations of the reference's 1200 steps; its iterations swing, so a longer average
-                             "awr": dict(_CRITIC_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999),
-                             # flat by 42k on walker medium on an H200 (docs/convergence.md); a GPU's column (issue 58)
-                             "bear": dict(_CRITIC_STUDY, steps=60_000)}}
-
-
-def preset_config(name: str, method: str = Config.method) -> Config:
-    """The preset ``name`` for ``method`` (one or several, comma-separated, of one agent): the DT family's values,
-    with :data:`CRITIC_PRESETS`' over them for a critic agent that has its own at that preset."""
-    agent = getattr(METHODS.get(method.split(",")[0]), "agent", None)
-    return dataclasses.replace(PRESETS[name], method=method, **CRITIC_PRESETS.get(name, {}).get(agent, {}))
+# the fields that say where and how a run was trained, not what was trained: a result that differs from another
+# only in these is the same experiment (programs of several models, chunking, periodic curves, and who steps the
+# same equations: C MuJoCo or MJX, README "Physics"). Every other field changes a model's result, but for the
+# fields of agents it is not (minsubdt_jax.agents: AgentInfo.fields, result_fields)
+RUN_ONLY_FIELDS = frozenset({"env", "dataset", "method", "seed", "seeds", "out", "preset", "chunk_steps", "physics",
+                             "physics_threads", "logger", "devices", "coordinator_address", "num_processes",
+                             "process_id", "eval_every", "eval_episodes_periodic"})
 
 
 LR_SCHEDULES = ("constant", "cosine")
@@ -184,6 +174,7 @@ def validate(cfg: Config) -> Config:
         if isinstance(getattr(cfg, f.name), float) and not math.isfinite(getattr(cfg, f.name)):
             raise ValueError(f"--{f.name.replace('_', '-')} must be a finite number, got {getattr(cfg, f.name)}")
     for name, allowed in CHOICES.items():
+        allowed = tuple(ENVS) if name == "env" else allowed  # with any registered since (envs.register_env)
         if getattr(cfg, name) not in allowed and not (name == "dynamics" and cfg.dynamics is None):
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     bad = [m for m in cfg.methods if m not in METHODS]
@@ -227,9 +218,6 @@ def validate(cfg: Config) -> Config:
         raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
     if cfg.embed_dim % cfg.n_heads:
         raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
-    if cfg.precision != "f32" and "mlp" in agents:
-        raise ValueError(f"--precision {cfg.precision} is for the DT and the critic agents; --method {cfg.method} "
-                         f"trains the MLP agent")
     for name in ("ac_hidden", "ac_layers", "actor_lr", "critic_lr"):
         if getattr(cfg, name) is not None and not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
@@ -249,35 +237,3 @@ def validate(cfg: Config) -> Config:
         raise ValueError(f"--alpha-max must be > 0, got {cfg.alpha_max}")
     distributed_settings(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
     return cfg
-
-
-def parse_args(argv=None) -> tuple[Config, bool]:
-    """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""
-    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
-                                description="Train MinSubDT (or DT, BC, a critic agent) on a dataset and evaluate it in "
-                                            "batched physics: C MuJoCo on a CPU, MJX on an accelerator.")
-    add_flags(p, Config, CHOICES, PRESETS, Config.preset)
-    p.add_argument("--config", help="a config file (a run's config.json, or YAML) to start from; its fields "
-                   "override the preset's and the flags given override its")
-    p.add_argument("--returns", choices=tuple(RETURNS_ALIASES),
-                   help="older name of --method: " + ", ".join(f"{k} = {v}" for k, v in RETURNS_ALIASES.items()))
-    p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
-    args = vars(p.parse_args(argv))
-    if args["costs"] == "list":  # as the data CLI: the built-in metrics of --env, then exit
-        print("\n".join(describe_metrics(args["env"] or Config.env)))
-        raise SystemExit(0)
-    resume = args.pop("resume")
-    alias = args.pop("returns")
-    if alias is not None:
-        if args["method"] not in (None, RETURNS_ALIASES[alias]):
-            raise ValueError(f"--returns {alias} means --method {RETURNS_ALIASES[alias]}, not {args['method']}: "
-                             f"give one of them")
-        args["method"] = RETURNS_ALIASES[alias]
-    path = args.pop("config")
-    from_file = load_fields(path, Config, "python -m minsubdt_jax.train --help") if path else {}
-    preset = args["preset"] or from_file.get("preset") or Config.preset
-    given = {k: v for k, v in args.items() if v is not None}
-    method = given.get("method") or from_file.get("method") or Config.method
-    cfg = dataclasses.replace(preset_config(preset, method), **{**from_file, **given})
-    return validate(cfg), resume
-

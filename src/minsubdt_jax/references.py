@@ -29,13 +29,19 @@ SCALE = "0-100: 100 (R - R_random) / (R_expert - R_random); D4RL's and Minari's 
 def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:
     """``(R_random, R_expert)`` for ``env`` in ``dynamics``."""
     spec = env_spec(env)
-    name = spec.name
-    if dynamics == "d4rl":  # d4rl/infos.py, the -v2 locomotion datasets (the same for every dataset of an env)
-        return spec.d4rl_random, spec.d4rl_expert
+    if dynamics in spec.references:  # the env's record: d4rl/infos.py's for D4RL's envs (every dataset of an env)
+        return tuple(spec.references[dynamics][:2])
     if dynamics != "brax":
-        raise ValueError(f"no references for dynamics {dynamics!r}; choose one of {sorted(REFERENCE_SOURCES)}")
-    refs = load_manifest(name)["references"]
+        raise ValueError(f"no references for {spec.name} in dynamics {dynamics!r}; it has "
+                         f"{sorted(set(spec.references) | {'brax'})}")
+    refs = load_manifest(spec.name)["references"]
     return refs["random"]["return_mean"], refs["expert"]["return_mean"]
+
+
+def reference_source(env: str, dynamics: str = "brax") -> str:
+    """Where :func:`reference_returns`' numbers come from: the env record's own words, else the brax manifests'."""
+    own = env_spec(env).references.get(dynamics)
+    return own[2] if own is not None else REFERENCE_SOURCES[dynamics]
 
 
 def normalized_score(env: str, returns, dynamics: str = "brax"):
@@ -47,5 +53,5 @@ def normalized_score(env: str, returns, dynamics: str = "brax"):
 def references_record(env: str, dynamics: str = "brax") -> dict:
     """What ``results.json`` says about the references a score used."""
     lo, hi = reference_returns(env, dynamics)
-    return {"dynamics": dynamics, "random": lo, "expert": hi, "source": REFERENCE_SOURCES[dynamics],
+    return {"dynamics": dynamics, "random": lo, "expert": hi, "source": reference_source(env, dynamics),
             "scale": SCALE}

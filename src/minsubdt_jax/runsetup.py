@@ -53,6 +53,19 @@ class RunPlan:
     dynamics_how: dict
 
 
+def check_agent_settings(cfg: Config, name: str):
+    """The agent ``name``'s record (:class:`~minsubdt_jax.agents.AgentInfo`), after the checks it asks for: one
+    dataset per program where its step reads every stored episode, ``--precision`` only where it reads it."""
+    agent = AGENTS[name]
+    if len(cfg.datasets) > 1 and agent.one_dataset:
+        raise ValueError(f"the {name} agent's step reads every stored episode, so its datasets cannot share one "
+                         f"program: train them apart")
+    if cfg.precision != "f32" and "precision" not in agent.fields:
+        raise ValueError(f"--precision {cfg.precision} is for the DT and the critic agents; --method {cfg.method} "
+                         f"trains the {name} agent, which has one")
+    return agent
+
+
 def plan_run(cfg: Config, resume: bool, verbose: bool, metrics) -> RunPlan:
     """Every check that can fail on the config, the run directory, the devices, the metrics and the data, before
     anything is written; the datasets are loaded (or recorded on first use) here."""
@@ -61,10 +74,7 @@ def plan_run(cfg: Config, resume: bool, verbose: bool, metrics) -> RunPlan:
     init_distributed(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
     main = is_main_process()
     out = cfg.run_dir()
-    agent = AGENTS[methods[0].agent]
-    if len(cfg.datasets) > 1 and agent.one_dataset:
-        raise ValueError(f"the {methods[0].agent} agent's step reads every stored episode, so its datasets cannot "
-                         f"share one program: train them apart")
+    agent = check_agent_settings(cfg, methods[0].agent)
     decays = cfg.lr_schedule != "constant" or agent.fixed_steps
     if resume and decays and os.path.exists(os.path.join(out, "config.json")):
         with open(os.path.join(out, "config.json")) as f:  # the decay ends at --steps: it may not change

@@ -24,6 +24,7 @@ and at the end all seeds are evaluated in one rollout program. The run directory
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
 import sys
@@ -36,8 +37,12 @@ import orbax.checkpoint as ocp
 
 from .agents.base import make_train_chunk, merge_losses, piece_steps
 from .caches import enable_compilation_cache
-from .config import Config, parse_args
+from .agents import preset_config
+from .config import CHOICES, PRESETS, Config, validate
+from .costs import describe_metrics
+from .flags import add_flags, load_fields
 from .loggers import Loggers, logger_names
+from .methods import RETURNS_ALIASES
 from .parallel import gather, replicate
 from .rundir import InterruptFlag, Interrupted, RunLock, exit_code, json_text, progress, truncate_metrics
 from .runresults import METRICS_FILE_JSONL, finish_run, periodic_eval
@@ -107,7 +112,7 @@ def train_loop(run: RunPlan, agent, tx, state, data, data_axis, mngr, start: int
     try:  # an interruption (Ctrl-C, an error, a progress_fn that stops the run) still completes the last checkpoint
         while step < cfg.steps:
             n = min(cfg.chunk_steps, cfg.steps - step)
-            m = piece_steps(n, hasattr(agent, "make_chunk"))
+            m = piece_steps(n, agent.whole_chunks)
             if m not in chunks:
                 if run.verbose and not chunks:
                     bar.write("compiling the train step (the first chunk waits for it) ...")
@@ -140,6 +145,37 @@ def train_loop(run: RunPlan, agent, tx, state, data, data_axis, mngr, start: int
         stop.restore()
     bar.close()
     return state, step, time.time() - t0
+
+def parse_args(argv=None) -> tuple[Config, bool]:
+    """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""
+    p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
+                                description="Train MinSubDT (or DT, BC, a critic agent) on a dataset and evaluate it in "
+                                            "batched physics: C MuJoCo on a CPU, MJX on an accelerator.")
+    add_flags(p, Config, CHOICES, PRESETS, Config.preset)
+    p.add_argument("--config", help="a config file (a run's config.json, or YAML) to start from; its fields "
+                   "override the preset's and the flags given override its")
+    p.add_argument("--returns", choices=tuple(RETURNS_ALIASES),
+                   help="older name of --method: " + ", ".join(f"{k} = {v}" for k, v in RETURNS_ALIASES.items()))
+    p.add_argument("--resume", action="store_true", help="continue from the run directory's last checkpoint")
+    args = vars(p.parse_args(argv))
+    if args["costs"] == "list":  # as the data CLI: the built-in metrics of --env, then exit
+        print("\n".join(describe_metrics(args["env"] or Config.env)))
+        raise SystemExit(0)
+    resume = args.pop("resume")
+    alias = args.pop("returns")
+    if alias is not None:
+        if args["method"] not in (None, RETURNS_ALIASES[alias]):
+            raise ValueError(f"--returns {alias} means --method {RETURNS_ALIASES[alias]}, not {args['method']}: "
+                             f"give one of them")
+        args["method"] = RETURNS_ALIASES[alias]
+    path = args.pop("config")
+    from_file = load_fields(path, Config, "python -m minsubdt_jax.train --help") if path else {}
+    preset = args["preset"] or from_file.get("preset") or Config.preset
+    given = {k: v for k, v in args.items() if v is not None}
+    method = given.get("method") or from_file.get("method") or Config.method
+    cfg = dataclasses.replace(preset_config(preset, method), **{**from_file, **given})
+    return validate(cfg), resume
+
 
 def main(argv=None) -> int:
     enable_compilation_cache()

@@ -7,9 +7,11 @@ max_timestep)`` returns a record implementing :class:`~minsubdt_jax.agents.base.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from typing import Callable
 
+from ..methods import METHODS
 from .awr.agent import make_awr_agent
 from .bear.agent import make_bear_agent
 from .brac.agent import make_brac_agent
@@ -19,12 +21,29 @@ from .iql.agent import make_iql_agent
 from .mlp.agent import make_mlp_agent
 from .td3bc.agent import make_td3bc_agent
 
+# Config fields an agent's optimiser reads: the shared step's AdamW (DT, MLP), or a critic agent's own optimisers,
+# networks and backup (agents/actor_critic.py)
+_ADAMW = frozenset({"batch_size", "learning_rate", "weight_decay", "warmup_steps", "grad_clip", "lr_schedule"})
+_CRITIC = frozenset({"critic_batch_size", "discount", "tau", "ac_hidden", "ac_layers", "actor_lr", "critic_lr",
+                     "precision"})
+# a critic agent's own setting at `study`, chosen by its own 3-seed curve (walker medium, EMA), at its reference's
+# rates (issue 25; docs/convergence.md). At `study` an agent without an entry has not converged here: table1.py
+# refuses it
+_STUDY = dict(chunk_steps=2000, lr_schedule="constant", ema_decay=0.999)
+
+
 @dataclass(frozen=True)
 class AgentInfo:
     """What the run and the experiments need to know of an agent, declared once, here.
 
     Attributes:
       make: ``make(cfg, obs_dim, act_dim, max_timestep) -> agent`` (:class:`~minsubdt_jax.agents.base.Agent`).
+      fields: the :class:`~minsubdt_jax.config.Config` fields that only some agents read and this one does (its
+        network, optimiser and loss settings; ``tests/test_agents.py`` holds them to what it reads). The
+        experiments read them: a result or a curve of this agent differs from another only in the fields it reads
+        (:func:`result_fields`).
+      presets: its own values over a preset's (``{preset: {field: value}}``, :func:`preset_config`). A preset that
+        some agent names is one that every agent of a sweep must name (``{}``: the preset's values are its own).
       transitions: it trains on transitions, ``--critic-batch-size`` per step (the critic agents), not on windows.
       fixed_steps: a schedule tied to ``--steps`` (IQL's actor rate, BRAC-v's pretraining, BEAR's warm-up): a
         resumed run keeps its ``--steps``.
@@ -33,19 +52,68 @@ class AgentInfo:
     """
 
     make: Callable
+    fields: frozenset = frozenset()
+    presets: dict = field(default_factory=dict)
     transitions: bool = False
     fixed_steps: bool = False
     one_dataset: bool = False
 
 
-AGENTS = {"dt": AgentInfo(make_dt_agent), "mlp": AgentInfo(make_mlp_agent),
-          "iql": AgentInfo(make_iql_agent, transitions=True, fixed_steps=True),
-          "td3bc": AgentInfo(make_td3bc_agent, transitions=True), "cql": AgentInfo(make_cql_agent, transitions=True),
-          "brac": AgentInfo(make_brac_agent, transitions=True, fixed_steps=True),
-          "bear": AgentInfo(make_bear_agent, transitions=True, fixed_steps=True),
-          "awr": AgentInfo(make_awr_agent, transitions=True, one_dataset=True)}
+AGENTS = {
+    # the DT family's preset values are the DT's own (chosen by its curves, docs/convergence.md)
+    "dt": AgentInfo(make_dt_agent, _ADAMW | {"context_len", "embed_dim", "n_layers", "n_heads", "dropout",
+                                                       "precision"},
+                    presets={"study": {}}),
+    "mlp": AgentInfo(make_mlp_agent, _ADAMW | {"mlp_hidden", "mlp_layers"}),
+    "iql": AgentInfo(make_iql_agent, _CRITIC | {"iql_expectile", "iql_beta"}, {"study": dict(_STUDY, steps=60_000)},
+                     transitions=True, fixed_steps=True),
+    "td3bc": AgentInfo(make_td3bc_agent, _CRITIC | {"td3bc_alpha"}, {"study": dict(_STUDY, steps=100_000)},
+                       transitions=True),
+    "cql": AgentInfo(make_cql_agent, _CRITIC | {"cql_alpha", "cql_actions"}, transitions=True),
+    "brac": AgentInfo(make_brac_agent, _CRITIC | {"brac_alpha", "pretrain_steps"}, transitions=True,
+                      fixed_steps=True),
+    # flat by 42k on walker medium on an H200 (docs/convergence.md); a GPU's column (issue 58)
+    "bear": AgentInfo(make_bear_agent, _CRITIC | {"pretrain_steps"}, {"study": dict(_STUDY, steps=60_000)},
+                      transitions=True, fixed_steps=True),
+    # 200 iterations of the reference's 1200 steps; its iterations swing, so a longer average
+    "awr": AgentInfo(make_awr_agent, _CRITIC - {"tau"}, {"study": dict(_STUDY, steps=240_000, chunk_steps=1200,
+                                                            ema_decay=0.9999)},
+                     transitions=True, one_dataset=True)}
 CRITIC_AGENTS = tuple(n for n, a in AGENTS.items() if a.transitions)  # read from the records above
 FIXED_STEPS = tuple(n for n, a in AGENTS.items() if a.fixed_steps)
+
+
+def agent_of(method: str) -> str:
+    """The agent that trains ``method`` (one name, or the first of several comma-separated)."""
+    return METHODS[method.split(",")[0].strip()].agent
+
+
+def preset_config(name: str, method: str = "minsubdt"):
+    """The preset ``name`` for ``method`` (one or several, comma-separated, of one agent): the preset's values
+    (:data:`~minsubdt_jax.config.PRESETS`), with its agent's own over them (:attr:`AgentInfo.presets`)."""
+    from ..config import PRESETS  # here: the config reads the envs, which the agents do not need
+
+    first = method.split(",")[0].strip()  # an unknown one is validate's to refuse
+    own = AGENTS[METHODS[first].agent].presets.get(name, {}) if first in METHODS else {}
+    return dataclasses.replace(PRESETS[name], method=method, **own)
+
+
+def missing_presets(preset: str, methods) -> list[str]:
+    """The methods of ``methods`` whose agent has no setting of its own at ``preset`` where some agent has one
+    (:attr:`AgentInfo.presets`): trained at the DT family's values they would be no result."""
+    if not any(preset in a.presets for a in AGENTS.values()):
+        return []
+    return [m for m in methods if preset not in AGENTS[agent_of(m)].presets]
+
+
+def result_fields(agent: str) -> frozenset[str]:
+    """The :class:`~minsubdt_jax.config.Config` fields that change what a model of ``agent`` learns or scores:
+    all but where and how it ran (:data:`~minsubdt_jax.config.RUN_ONLY_FIELDS`) and the other agents' own fields
+    (:attr:`AgentInfo.fields`) that it does not read."""
+    from ..config import RUN_ONLY_FIELDS, Config
+
+    others = frozenset().union(*(a.fields for a in AGENTS.values())) - AGENTS[agent].fields
+    return frozenset(f.name for f in dataclasses.fields(Config)) - RUN_ONLY_FIELDS - others
 
 
 def batch_size_of(name: str, cfg) -> int:

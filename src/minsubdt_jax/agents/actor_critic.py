@@ -29,7 +29,7 @@ import optax
 
 from ..data import SamplerData, sample_transitions
 from ..parallel import shard_batch
-from .base import PolicyInputs, TrainState, ema_update
+from .base import PolicyInputs, StepAgent, TrainState, ema_update
 
 
 def polyak(target, online, tau: float):
@@ -99,20 +99,21 @@ def deterministic_policy(actor, kind: str):
 
 
 @dataclass(frozen=True)
-class CriticAgentBase:
-    """Fields every critic agent has (from :class:`~minsubdt_jax.config.Config`): data shapes, network width and
-    depth, the backup's discount, the Polyak rate, transitions per step, the actor's and critics' Adam rates."""
+class TransitionAgent:
+    """Fields every agent that trains on transitions has (from :class:`~minsubdt_jax.config.Config`): data shapes,
+    network width and depth, the discount, transitions per step, the actor's and critics' (or value net's) rates,
+    and one optimiser per network (``optimizers``). AWR's base; the critic agents' through
+    :class:`CriticAgentBase`."""
 
     obs_dim: int
     act_dim: int
     hidden: tuple
     discount: float
-    tau: float
     batch_size: int
     actor_lr: float
     critic_lr: float
     precision: str = "f32"  # f32 | tf32 (TF32 matmuls where the device has them) | bf16 (bfloat16 matmuls)
-    context_len: ClassVar[int] = 1  # the shared interface's window; critic agents sample transitions
+    context_len: ClassVar[int] = 1  # the shared interface's window; these agents sample transitions
 
     @property
     def dtype(self):
@@ -122,10 +123,18 @@ class CriticAgentBase:
     def initial_carry(self, n: int):
         return ()
 
-    def optimizer(self) -> optax.GradientTransformation:
+    def optimizer(self, cfg=None) -> optax.GradientTransformation:
         return per_network_optimizer(self.optimizers)
 
-    def make_step(self, batch_size: int, mesh=None, ema_decay: float = 0.0):
+
+@dataclass(frozen=True)
+class CriticAgentBase(TransitionAgent, StepAgent):
+    """A critic agent: :class:`TransitionAgent` with Polyak-averaged targets (rate ``tau``) and the shared chunk
+    scanning its own step, :func:`make_ac_step`."""
+
+    tau: float = 0.005
+
+    def make_step(self, tx, batch_size: int, mesh=None, ema_decay: float = 0.0):
         return make_ac_step(self, batch_size, mesh, ema_decay)
 
     def loss(self, params, batch, rng, step=None):

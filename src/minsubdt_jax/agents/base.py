@@ -6,23 +6,27 @@ record built from the :class:`~minsubdt_jax.config.Config` and the data's shapes
 
 * ``context_len``: the length of the windows it trains on (:func:`minsubdt_jax.data.sample_batch`);
 * ``init_params(key)``: fresh parameters;
-* ``loss(params, batch, rng) -> scalar``: its training loss on a :class:`~minsubdt_jax.data.Batch`;
 * ``policy``: a rollout policy for :func:`minsubdt_jax.envs.make_rollout`, called with :class:`PolicyInputs`;
-* ``initial_carry(n)``: the policy's carry for ``n`` fresh episodes.
+* ``initial_carry(n)``: the policy's carry for ``n`` fresh episodes;
+* ``optimizer(cfg)`` and ``make_chunk(tx, batch_size, n_steps, ...)``: its optimiser and its jitted chunk of
+  training steps; ``whole_chunks``: a chunk that cannot be cut into shorter ones (AWR's iteration).
 
-Everything else (sampling, the update, seeds, devices, checkpoints, evaluation) is the same for all agents.
+That is what the run calls (:class:`Agent`). Most agents get the last three from :class:`StepAgent`: AdamW and a
+``lax.scan`` of the shared step, which minimises the agent's ``loss(params, batch, rng) -> scalar`` on a
+:class:`~minsubdt_jax.data.Batch`; the critic agents from :class:`~minsubdt_jax.agents.actor_critic.CriticAgentBase`.
+Everything else (sampling, seeds, devices, checkpoints, evaluation) is the same for all agents.
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, ClassVar, Protocol
 
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
-from ..data import Batch, SamplerData, sample_batch
+from ..data import SamplerData, sample_batch
 from ..parallel import shard_batch
 
 
@@ -69,14 +73,20 @@ class PolicyInputs:
 
 
 class Agent(Protocol):
+    """What the run calls of an agent (module docstring)."""
+
     context_len: int
     policy: Callable
+    whole_chunks: bool
 
     def init_params(self, key) -> Any: ...
 
-    def loss(self, params, batch: Batch, rng) -> jax.Array: ...
-
     def initial_carry(self, n: int) -> Any: ...
+
+    def optimizer(self, cfg) -> optax.GradientTransformation: ...
+
+    def make_chunk(self, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
+                   data_axis: int | None = None, ema_decay: float = 0.0) -> Callable: ...
 
 
 def learning_rate(cfg, step):
@@ -97,9 +107,9 @@ def make_optimizer(cfg) -> optax.GradientTransformation:
 
 
 def optimizer_for(agent: Agent, cfg) -> optax.GradientTransformation:
-    """The agent's optimiser: its own where it has one (a critic agent's per-network optimisers,
-    :mod:`~minsubdt_jax.agents.actor_critic`), else :func:`make_optimizer`'s AdamW."""
-    return agent.optimizer() if hasattr(agent, "optimizer") else make_optimizer(cfg)
+    """The agent's optimiser: :func:`make_optimizer`'s AdamW (:class:`StepAgent`), or a critic agent's per-network
+    optimisers (:mod:`~minsubdt_jax.agents.actor_critic`)."""
+    return agent.optimizer(cfg)
 
 
 def init_state(agent: Agent, tx, key, ema: bool = False) -> TrainState:
@@ -130,22 +140,9 @@ def make_train_step(agent: Agent, tx, batch_size: int, mesh=None, ema_decay: flo
     return step
 
 
-def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
-                     data_axis: int | None = None, ema_decay: float = 0.0):
-    """Jitted ``chunk(state, data) -> (state, losses [n_steps])`` (a critic agent's: ``(losses, {name: [n_steps]})``,
-    its losses by name beside the total): ``n_steps`` train steps in one ``lax.scan``
-    (data parallel over ``mesh`` when given: pass ``state`` and ``data`` replicated on it).
-
-    With ``seed_axis`` the state has a leading seed axis (:func:`init_seed_states`) and every step is
-    ``vmap``-ed over it: S independent models train in one program, ``losses [n_steps, S]``. ``data_axis``
-    0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one. A critic agent (one with
-    ``make_step``) steps with its own, :func:`~minsubdt_jax.agents.actor_critic.make_ac_step` on transitions."""
-    if hasattr(agent, "make_chunk"):  # an agent whose chunk is not a scan of one step (AWR's iteration)
-        return agent.make_chunk(n_steps, seed_axis, data_axis, ema_decay)
-    if hasattr(agent, "make_step"):
-        step = agent.make_step(batch_size, mesh, ema_decay)
-    else:
-        step = make_train_step(agent, tx, batch_size, mesh, ema_decay)
+def scan_steps(step, n_steps: int, seed_axis: bool = False, data_axis: int | None = None):
+    """Jitted ``chunk(state, data) -> (state, losses [n_steps(, S)])``: ``step`` scanned ``n_steps`` times, ``vmap``-ed
+    over a leading seed axis of the state with ``seed_axis`` (``data_axis`` 0: each seed its own sampler data)."""
     if seed_axis:
         step = jax.vmap(step, in_axes=(0, data_axis))
 
@@ -153,6 +150,37 @@ def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None,
         return jax.lax.scan(lambda s, _: step(s, data), state, None, length=n_steps)
 
     return jax.jit(chunk, donate_argnums=0)
+
+
+class StepAgent:
+    """The run's calls for an agent trained by the shared step (DT, MLP): :func:`make_optimizer`'s AdamW and a scan
+    of :func:`make_train_step` on its ``loss``. A subclass with its own step overrides ``make_step`` (the critic
+    agents), one whose chunk is no scan of steps ``make_chunk`` and ``whole_chunks``."""
+
+    whole_chunks: ClassVar[bool] = False
+
+    def optimizer(self, cfg) -> optax.GradientTransformation:
+        return make_optimizer(cfg)
+
+    def make_step(self, tx, batch_size: int, mesh=None, ema_decay: float = 0.0):
+        return make_train_step(self, tx, batch_size, mesh, ema_decay)
+
+    def make_chunk(self, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
+                   data_axis: int | None = None, ema_decay: float = 0.0):
+        return scan_steps(self.make_step(tx, batch_size, mesh, ema_decay), n_steps, seed_axis, data_axis)
+
+
+def make_train_chunk(agent: Agent, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False,
+                     data_axis: int | None = None, ema_decay: float = 0.0):
+    """Jitted ``chunk(state, data) -> (state, losses [n_steps])`` (a critic agent's: ``(losses, {name: [n_steps]})``,
+    its losses by name beside the total): ``n_steps`` train steps in one ``lax.scan`` (the agent's
+    ``make_chunk``; data parallel over ``mesh`` when given: pass ``state`` and ``data`` replicated on it).
+
+    With ``seed_axis`` the state has a leading seed axis (:func:`init_seed_states`) and every step is
+    ``vmap``-ed over it: S independent models train in one program, ``losses [n_steps, S]``. ``data_axis``
+    0 gives each seed its own sampler data (stacked ``[S, ...]``), ``None`` shares one."""
+    return agent.make_chunk(tx, batch_size, n_steps, mesh, seed_axis=seed_axis, data_axis=data_axis,
+                            ema_decay=ema_decay)
 
 
 def init_seed_states(agent: Agent, tx, seeds, ema: bool = False) -> TrainState:

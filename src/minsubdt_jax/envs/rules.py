@@ -12,12 +12,15 @@ Two sets of rules (``dynamics``):
   walker foot friction 0.9 / 1.9). D4RL recorded its datasets with these classes (mujoco-py, gym < 0.24).
   Everything is read from ``qpos``/``qvel``; the healthy reward is paid on the terminal step too (v5 does not).
 
-The functions take an array namespace ``xp`` (``jax.numpy`` for MJX, ``numpy`` for C MuJoCo in float64), so the
+Each env's constants (its XML per dynamics, frame skip, control cost, reset noise, healthy ranges) are its record's
+(:class:`~minsubdt_jax.envs.spec.Dynamics` in :data:`~minsubdt_jax.envs.spec.ENVS`); the functions here are the same
+for every env. They take an array namespace ``xp`` (``jax.numpy`` for MJX, ``numpy`` for C MuJoCo in float64), so the
 two backends run the same rules. ``torso`` is the torso body's ``xpos`` ``[..., 3]``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib.util
 import os
@@ -27,33 +30,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .spec import env_spec
+from .spec import Dynamics, env_spec
 
 DYNAMICS = ("brax", "d4rl")
 TORSO = 1  # body id of the torso in every model here (body 0 is the world)
-# gymnasium's asset names for the d4rl dynamics (gym's v2-v4 XMLs; walker2d.xml is v4's, not walker2d_v5.xml)
-_GYM_XML = {"hopper": "hopper.xml", "walker": "walker2d.xml", "halfcheetah": "half_cheetah.xml"}
-_BRAX_XML = {"hopper": "hopper.xml", "walker": "walker2d.xml", "halfcheetah": "half_cheetah.xml"}
 
 
 @dataclass(frozen=True)
-class Rules:
-    """One env's rules in one dynamics (:func:`env_rules`). Ranges are open intervals, as in brax and gym."""
+class Rules(Dynamics):
+    """One env's rules in one dynamics (:func:`env_rules`): its :class:`~minsubdt_jax.envs.spec.Dynamics` (the
+    env record's), with the env, the dynamics' name, the decision step ``dt`` (timestep x frame_skip) and the
+    model's ``nv``."""
 
-    env: str
-    dynamics: str
-    frame_skip: int
-    dt: float  # timestep x frame_skip
-    ctrl_cost: float
-    reset_noise: float  # qpos0 + U(±noise); qvel U(±noise), or noise x N(0, 1) when qvel_noise_normal
-    qvel_noise_normal: bool
-    clip_qvel: bool  # observe clip(qvel, ±10)
-    height_from_torso: bool  # obs[0] is the torso's xpos z (brax hopper/walker), else qpos[1]
-    forward_from_torso: bool  # forward progress is the torso's xpos x (brax), else qpos[0]
-    healthy_reward: float
-    z_range: tuple[float, float] | None
-    angle_range: tuple[float, float] | None
-    state_range: tuple[float, float] | None  # bounds on qpos[2:] and qvel (hopper)
+    env: str = ""
+    dynamics: str = ""
+    dt: float = 0.0
+    nv: int = 0
 
     @property
     def terminates(self) -> bool:
@@ -68,21 +60,14 @@ def check_dynamics_name(dynamics: str) -> str:
 
 @functools.lru_cache(maxsize=None)
 def env_rules(env: str, dynamics: str = "brax") -> Rules:
-    """The :class:`Rules` of ``env`` in ``dynamics`` (``brax`` or ``d4rl``)."""
-    name = env_spec(env).name
-    check_dynamics_name(dynamics)
-    brax = dynamics == "brax"
-    model = mj_model(name, dynamics)
-    skip = 5 if name == "halfcheetah" else 4
-    common = dict(env=name, dynamics=dynamics, frame_skip=skip, dt=float(model.opt.timestep) * skip,
-                  forward_from_torso=brax)
-    if name == "halfcheetah":
-        return Rules(**common, ctrl_cost=0.1, reset_noise=0.1, qvel_noise_normal=True, clip_qvel=False,
-                     height_from_torso=False, healthy_reward=0.0, z_range=None, angle_range=None, state_range=None)
-    hopper = name == "hopper"
-    return Rules(**common, ctrl_cost=1e-3, reset_noise=5e-3, qvel_noise_normal=False, clip_qvel=True,
-                 height_from_torso=brax, healthy_reward=1.0, z_range=(0.7, float("inf")) if hopper else (0.8, 2.0),
-                 angle_range=(-0.2, 0.2) if hopper else (-1.0, 1.0), state_range=(-100.0, 100.0) if hopper else None)
+    """The :class:`Rules` of ``env`` in ``dynamics`` (its record's :class:`~minsubdt_jax.envs.spec.Dynamics`)."""
+    spec = env_spec(env)
+    own = spec.dynamics.get(check_dynamics_name(dynamics))
+    if own is None:
+        raise ValueError(f"env {spec.name} has no {dynamics} dynamics; it has {sorted(spec.dynamics)}")
+    model = mj_model(spec.name, dynamics)
+    return Rules(**dataclasses.asdict(own), env=spec.name, dynamics=dynamics,
+                 dt=float(model.opt.timestep) * own.frame_skip, nv=int(model.nv))
 
 
 def import_mjx():
@@ -104,24 +89,35 @@ def import_mjx():
     return sys.modules["mujoco.mjx"]
 
 
+def model_file(xml: str) -> str:
+    """The path of a :class:`~minsubdt_jax.envs.spec.Dynamics` ``xml``: ``"package:relative/path"`` in the installed
+    package, or the path itself."""
+    package, sep, rel = xml.partition(":")
+    if not sep or os.path.isabs(xml):
+        return xml
+    spec = importlib.util.find_spec(package)
+    if spec is None:
+        raise ValueError(f"the model {xml} is a file of the {package} package: pip install {package}")
+    return os.path.join(spec.submodule_search_locations[0], rel)
+
+
 @functools.lru_cache(maxsize=None)
 def mj_model(env: str, dynamics: str = "brax"):
-    """The ``mujoco.MjModel`` of ``env`` in ``dynamics``: brax's XML as brax loads it (``mjcf.load_mjmodel``, the
-    model its MJX envs run), or gym's XML from gymnasium's package assets. Shared: do not modify it."""
+    """The ``mujoco.MjModel`` of ``env`` in ``dynamics``: its record's XML (brax's as brax loads it,
+    ``mjcf.load_mjmodel``, the model its MJX envs run; gym's from gymnasium's package assets). Shared: do not
+    modify it."""
     import mujoco
 
-    name = env_spec(env).name
-    if check_dynamics_name(dynamics) == "brax":
+    spec = env_spec(env)
+    own = spec.dynamics.get(check_dynamics_name(dynamics))
+    if own is None:
+        raise ValueError(f"env {spec.name} has no {dynamics} dynamics; it has {sorted(spec.dynamics)}")
+    if own.brax_loader:
         import_mjx()  # brax imports it
         from brax.io import mjcf
 
-        spec = importlib.util.find_spec("brax")
-        return mjcf.load_mjmodel(os.path.join(spec.submodule_search_locations[0], "envs", "assets", _BRAX_XML[name]))
-    spec = importlib.util.find_spec("gymnasium")
-    if spec is None:
-        raise ValueError("the d4rl dynamics load gym's XMLs from the gymnasium package: pip install gymnasium")
-    return mujoco.MjModel.from_xml_path(
-        os.path.join(spec.submodule_search_locations[0], "envs", "mujoco", "assets", _GYM_XML[name]))
+        return mjcf.load_mjmodel(model_file(own.xml))
+    return mujoco.MjModel.from_xml_path(model_file(own.xml))
 
 
 def reset_state(rules: Rules, qpos0, key):
@@ -130,19 +126,19 @@ def reset_state(rules: Rules, qpos0, key):
     _, k1, k2 = jax.random.split(key, 3)
     noise = rules.reset_noise
     qpos = jnp.asarray(qpos0, jnp.float32) + jax.random.uniform(k1, np.shape(qpos0), minval=-noise, maxval=noise)
-    nv = np.shape(qpos0)[0]  # nq == nv for these planar models
     if rules.qvel_noise_normal:
-        qvel = noise * jax.random.normal(k2, (nv,))
+        qvel = noise * jax.random.normal(k2, (rules.nv,))
     else:
-        qvel = jax.random.uniform(k2, (nv,), minval=-noise, maxval=noise)
+        qvel = jax.random.uniform(k2, (rules.nv,), minval=-noise, maxval=noise)
     return qpos, qvel
 
 
 def observe(rules: Rules, qpos, qvel, torso, xp=jnp):
     """The observation ``[..., obs]`` of states ``qpos [..., nq]``, ``qvel [..., nv]``, ``torso [..., 3]``."""
-    height = torso[..., 2:3] if rules.height_from_torso else qpos[..., 1:2]
+    k = rules.obs_skip
+    pos = xp.concatenate([torso[..., 2:3], qpos[..., k + 1:]], axis=-1) if rules.height_from_torso else qpos[..., k:]
     vel = xp.clip(qvel, -10.0, 10.0) if rules.clip_qvel else qvel
-    return xp.concatenate([height, qpos[..., 2:], vel], axis=-1)
+    return xp.concatenate([pos, vel], axis=-1)
 
 
 def forward_position(rules: Rules, qpos, torso):
@@ -154,12 +150,13 @@ def is_healthy(rules: Rules, qpos, qvel, torso, xp=jnp):
     """``[...]`` bool: the state is within the env's healthy ranges (always, for halfcheetah)."""
     ok = xp.ones(qpos.shape[:-1], bool)
     if rules.z_range is not None:
-        z = torso[..., 2] if rules.height_from_torso else qpos[..., 1]  # brax tests the torso's xpos, gym qpos[1]
+        z = torso[..., 2] if rules.height_from_torso else qpos[..., rules.z_index]  # brax: the torso's xpos
         ok = ok & (rules.z_range[0] < z) & (z < rules.z_range[1])
     if rules.angle_range is not None:
-        ok = ok & (rules.angle_range[0] < qpos[..., 2]) & (qpos[..., 2] < rules.angle_range[1])
+        angle = qpos[..., rules.angle_index]
+        ok = ok & (rules.angle_range[0] < angle) & (angle < rules.angle_range[1])
     if rules.state_range is not None:
-        s = xp.concatenate([qpos[..., 2:], qvel], axis=-1)
+        s = xp.concatenate([qpos[..., rules.obs_skip + 1:], qvel], axis=-1)
         ok = ok & xp.all((rules.state_range[0] < s) & (s < rules.state_range[1]), axis=-1)
     return ok
 

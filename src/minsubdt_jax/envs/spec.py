@@ -3,7 +3,7 @@ signature."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import jax
@@ -12,19 +12,61 @@ from flax import struct
 
 
 @dataclass(frozen=True)
+class Dynamics:
+    """One env's rules in one dynamics (:mod:`~minsubdt_jax.envs.rules` turns them into a ``Rules``): its model
+    file and the constants of its reset, observation, reward and termination. Ranges are open intervals.
+
+    ``xml`` is ``"package:relative/path"`` (a file of an installed package) or a path; ``brax_loader`` loads it with
+    brax's ``mjcf.load_mjmodel`` (as brax's envs do), else MuJoCo's own. The observation is
+    ``[height, qpos[obs_skip + 1:], qvel]`` with the torso's ``xpos`` z as the height (``height_from_torso``), else
+    ``[qpos[obs_skip:], qvel]``; ``z_index`` and ``angle_index`` are the qpos entries the healthy ranges test. The
+    reset is ``qpos0 + U(±reset_noise)`` and a ``qvel`` of the model's ``nv`` entries, ``U(±reset_noise)`` or
+    ``reset_noise x N(0, 1)`` (``qvel_noise_normal``): nothing assumes ``nq == nv``.
+    """
+
+    xml: str
+    frame_skip: int
+    ctrl_cost: float
+    reset_noise: float
+    qvel_noise_normal: bool = False
+    clip_qvel: bool = False  # observe clip(qvel, ±10)
+    height_from_torso: bool = False
+    forward_from_torso: bool = False  # forward progress is the torso's xpos x (brax), else qpos[0]
+    healthy_reward: float = 0.0
+    z_range: tuple[float, float] | None = None
+    angle_range: tuple[float, float] | None = None
+    state_range: tuple[float, float] | None = None  # bounds on qpos[obs_skip + 1:] and qvel (hopper)
+    obs_skip: int = 1  # leading qpos entries the observation leaves out (the forward position x)
+    z_index: int = 1
+    angle_index: int = 2
+    brax_loader: bool = False
+
+
+def brax_and_d4rl(brax_xml: str, gym_xml: str, torso_height: bool = False, **rules) -> dict:
+    """``{"brax": ..., "d4rl": ...}``: one planar env's rules in brax's env (brax's XML and loader, forward progress
+    and, with ``torso_height``, the observed height from the torso's ``xpos``) and in gym's v2-v4 env (gymnasium's
+    XML, everything from ``qpos``), with the same constants ``rules`` (:mod:`~minsubdt_jax.envs.rules`)."""
+    return {"brax": Dynamics(f"brax:envs/assets/{brax_xml}", brax_loader=True, forward_from_torso=True,
+                             height_from_torso=torso_height, **rules),
+            "d4rl": Dynamics(f"gymnasium:envs/mujoco/assets/{gym_xml}", **rules)}
+
+
+@dataclass(frozen=True)
 class EnvSpec:
-    """Static facts about one environment.
+    """Everything about one environment, in one record (a new env is one record: :func:`register_env`).
 
     ``x_velocity_index`` / ``z_velocity_index`` index the observation vector (gym/D4RL layout: ``qpos[1:]``
     then ``qvel``), so cost metrics can be read from any D4RL-layout dataset as well as from our rollouts.
     ``reset_obs0`` is ``obs[0]`` in a reset state (torso height for hopper and walker, the root's z offset for
     halfcheetah), in brax MJX and in gym alike: it tells apart datasets of envs with the same shapes.
 
-    The rest is what other layers tune per env, kept here so an env is described in one place: ``terminates``
-    (episodes end when the body falls), the cost metrics' ranges (``speed_hi``: the forward speed of cost 0, m/s;
-    ``joint_speed_hi``, rad/s; ``speed_band`` and its saturation ``speed_band_sat``, m/s), D4RL's medium-replay size
-    (``replay_transitions``), D4RL's reference returns (``d4rl_random``, ``d4rl_expert``: d4rl/infos.py) and BEAR's
-    MMD kernel (``bear_kernel``: its reference's choice per env).
+    The rest is what other layers tune per env: ``terminates`` (episodes end when the body falls), the cost
+    metrics' ranges (``speed_hi``: the forward speed of cost 0, m/s; ``joint_speed_hi``, rad/s; ``speed_band`` and
+    its saturation ``speed_band_sat``, m/s), D4RL's medium-replay size (``replay_transitions``), BEAR's MMD kernel
+    (``bear_kernel``: its reference's choice per env), its rules and model per dynamics (``dynamics``:
+    :class:`Dynamics`) and the reference returns of a normalised score per dynamics (``references``: ``(random,
+    expert, where they come from)``; D4RL's are d4rl/infos.py's; without an entry for ``brax``, the ones measured with the committed
+    behaviour policies, ``behavior/snapshots/{env}/manifest.json``).
     """
 
     name: str
@@ -40,28 +82,51 @@ class EnvSpec:
     speed_band: tuple[float, float]
     speed_band_sat: float
     replay_transitions: int
-    d4rl_random: float
-    d4rl_expert: float
     bear_kernel: str
+    dynamics: dict = field(default_factory=dict, hash=False)
+    references: dict = field(default_factory=dict, hash=False)
 
 
+_D4RL_REFS = "D4RL's references (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE)"
+_HOPPER_WALKER = dict(frame_skip=4, ctrl_cost=1e-3, reset_noise=5e-3, clip_qvel=True, healthy_reward=1.0)
 # reset_obs0 measured as the mean obs[0] of 64 brax MJX resets: 1.25 ± 0.003 (hopper, walker), 0.00 ± 0.06
-# (halfcheetah); gym's resets (D4RL) have the same values.
+# (halfcheetah); gym's resets (D4RL) have the same values. Rules: brax 0.14.2's envs/*.py and gym's v3 classes.
 ENVS = {
     "hopper": EnvSpec("hopper", "hopper", 11, 3, 5, 6, 1.25, terminates=True, speed_hi=4.0, joint_speed_hi=10.0,
-                      speed_band=(2.0, 3.0), speed_band_sat=2.0, replay_transitions=402_000, d4rl_random=-20.272305,
-                      d4rl_expert=3234.3, bear_kernel="laplacian"),
+                      speed_band=(2.0, 3.0), speed_band_sat=2.0, replay_transitions=402_000, bear_kernel="laplacian",
+                      dynamics=brax_and_d4rl("hopper.xml", "hopper.xml", torso_height=True,
+                                             z_range=(0.7, float("inf")), angle_range=(-0.2, 0.2),
+                                             state_range=(-100.0, 100.0), **_HOPPER_WALKER),
+                      references={"d4rl": (-20.272305, 3234.3, _D4RL_REFS)}),
     "walker": EnvSpec("walker", "walker2d", 17, 6, 8, 9, 1.25, terminates=True, speed_hi=6.0, joint_speed_hi=10.0,
-                      speed_band=(2.5, 3.5), speed_band_sat=2.0, replay_transitions=302_000, d4rl_random=1.629008,
-                      d4rl_expert=4592.3, bear_kernel="laplacian"),
+                      speed_band=(2.5, 3.5), speed_band_sat=2.0, replay_transitions=302_000, bear_kernel="laplacian",
+                      dynamics=brax_and_d4rl("walker2d.xml", "walker2d.xml", torso_height=True,
+                                             z_range=(0.8, 2.0), angle_range=(-1.0, 1.0), **_HOPPER_WALKER),
+                      references={"d4rl": (1.629008, 4592.3, _D4RL_REFS)}),
     "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None, 0.0, terminates=False, speed_hi=15.0,
                            joint_speed_hi=30.0, speed_band=(4.0, 6.0), speed_band_sat=5.0, replay_transitions=202_000,
-                           d4rl_random=-280.178953, d4rl_expert=12135.0, bear_kernel="gaussian"),
+                           bear_kernel="gaussian",
+                           dynamics=brax_and_d4rl("half_cheetah.xml", "half_cheetah.xml", frame_skip=5,
+                                                  ctrl_cost=0.1, reset_noise=0.1, qvel_noise_normal=True),
+                           references={"d4rl": (-280.178953, 12135.0, _D4RL_REFS)}),
 }
 _ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
 
+
+def register_env(spec: EnvSpec) -> EnvSpec:
+    """Add ``spec`` to :data:`ENVS` (a new env from one file: ``tests/test_new_env.py``); an existing name is an
+    error. The run, the data and the metrics then take ``env=spec.name`` from the library; the command lines offer
+    the envs present when they are imported."""
+    if spec.name in ENVS or spec.name in _ALIASES:
+        raise ValueError(f"an env named {spec.name!r} exists already")
+    if not spec.dynamics:
+        raise ValueError(f"env {spec.name!r} names no dynamics (EnvSpec.dynamics: {{name: Dynamics}})")
+    ENVS[spec.name] = spec
+    return spec
+
+
 def env_spec(name: str) -> EnvSpec:
-    """The :class:`EnvSpec` for ``hopper``, ``walker`` (``walker2d``) or ``halfcheetah``."""
+    """The :class:`EnvSpec` for ``hopper``, ``walker`` (``walker2d``), ``halfcheetah`` or a registered env."""
     key = _ALIASES.get(name, name)
     if key not in ENVS:
         raise ValueError(f"unknown env {name!r}; choose one of {sorted(ENVS)} (aliases: {sorted(_ALIASES)})")

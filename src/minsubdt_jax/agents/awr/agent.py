@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import flax.linen as nn
 import jax
@@ -26,7 +26,7 @@ import optax
 
 from ...networks import MLP
 from ...data import draw_episodes
-from ..actor_critic import CriticAgentBase
+from ..actor_critic import TransitionAgent
 from ..critic_networks import f32
 from ..base import PolicyInputs, TrainState, ema_update
 from .losses import actor_loss, advantage_weights, lambda_returns
@@ -45,7 +45,11 @@ class Net(nn.Module):
 
 
 @dataclass(frozen=True)
-class AWRAgent(CriticAgentBase):
+class AWRAgent(TransitionAgent):
+    """AWR on :class:`~minsubdt_jax.agents.actor_critic.TransitionAgent`: no critic, no targets; its chunk is one
+    iteration (:meth:`make_chunk`), which cannot be cut into shorter ones."""
+
+    whole_chunks: ClassVar[bool] = True
     lam: float = 0.95
     temperature: float = 1.0
     action_std: float = 0.2
@@ -68,9 +72,11 @@ class AWRAgent(CriticAgentBase):
     def value(self, params, states):
         return self.networks[1].apply(params, states)[..., 0] / (1.0 - self.discount)
 
-    def make_chunk(self, n_steps: int, seed_axis: bool, data_axis, ema_decay: float = 0.0):
+    def make_chunk(self, tx, batch_size: int, n_steps: int, mesh=None, *, seed_axis: bool = False, data_axis=None,
+                   ema_decay: float = 0.0):
         """Jitted ``chunk(state, data) -> (state, (losses [n_steps(, S)], parts))``: one AWR iteration (per seed, on
-        a leading seed axis with ``seed_axis``). One device: the batch is not split over a mesh."""
+        a leading seed axis with ``seed_axis``) of its own ``batch_size`` transitions per step. One device: the
+        batch is not split over a mesh."""
         opt = self.optimizers
         n_value = n_steps // self.value_every
 
@@ -123,10 +129,6 @@ class AWRAgent(CriticAgentBase):
 
         return jax.jit(chunk, donate_argnums=0)
 
-    def make_step(self, *args, **kwargs):
-        """AWR has no step of its own to scan: its chunk is a whole iteration (:meth:`make_chunk`)."""
-        raise NotImplementedError("AWR trains by iterations: use make_chunk")
-
     @property
     def policy(self):
         return awr_policy(self.networks[0])
@@ -142,6 +144,6 @@ def awr_policy(actor: Net):
 
 def make_awr_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> AWRAgent:
     return AWRAgent(obs_dim=obs_dim, act_dim=act_dim, hidden=(cfg.ac_hidden or 128, 64) if cfg.ac_layers in (None, 2)
-                    else (cfg.ac_hidden or 128,) * cfg.ac_layers, discount=cfg.discount, tau=cfg.tau,
+                    else (cfg.ac_hidden or 128,) * cfg.ac_layers, discount=cfg.discount,
                     batch_size=cfg.critic_batch_size, actor_lr=cfg.actor_lr or 5e-5, critic_lr=cfg.critic_lr or 1e-2,
                     precision=cfg.precision)

@@ -8,13 +8,14 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
+from ..base import StepAgent
 from .losses import action_loss
 from .networks import DecisionTransformer
 from .policy import dt_policy, empty_context, return_shape
 
 
 @dataclass(frozen=True)
-class DTAgent:
+class DTAgent(StepAgent):
     """A DT of the given size for ``obs_dim``/``act_dim`` and episodes of up to ``max_timestep`` steps."""
 
     obs_dim: int

@@ -9,13 +9,13 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 
-from ..base import PolicyInputs
+from ..base import PolicyInputs, StepAgent
 from .losses import bc_loss
 from .networks import MLPPolicy
 
 
 @dataclass(frozen=True)
-class MLPAgent:
+class MLPAgent(StepAgent):
     obs_dim: int
     act_dim: int
     hidden: int
