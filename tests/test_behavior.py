@@ -57,9 +57,27 @@ TINY = dict(env="hopper", num_envs=4, batch_size=16, hidden=256, buffer_size=400
 
 
 @pytest.mark.slow
-def test_trainer_resumes_from_its_checkpoint(tmp_path):
+def test_trainer_resumes_from_its_checkpoint(tmp_path, monkeypatch):
+    """The SAC trainer runs on the agents' loop frame (``loop.chunk_loop``): a Ctrl-C stops it after the chunk under
+    way and its checkpoint, with a resume command that finishes the run; a resumed run keeps its replay buffer."""
+    from minsubdt_jax import loop
+    from minsubdt_jax.behavior.config import parse_args
+    from minsubdt_jax.rundir import Interrupted
+
+    class Pressed:  # Ctrl-C pressed during the first chunk
+        raised = True
+
+        def restore(self):
+            pass
+
     out = str(tmp_path / "sac")
-    first = train(SACConfig(steps=200, out=out, **TINY), verbose=False)
+    monkeypatch.setattr(loop, "InterruptFlag", Pressed)
+    with pytest.raises(Interrupted, match="at step 100 of 200; resume with: python -m minsubdt_jax.behavior.train") as e:
+        train(SACConfig(steps=200, out=out, **TINY), verbose=False)
+    monkeypatch.undo()
+    cfg, resume = parse_args(str(e.value).split("resume with: python -m minsubdt_jax.behavior.train ")[1].split())
+    assert cfg == SACConfig(steps=200, out=out, **TINY) and resume
+    first = train(cfg, resume=resume, verbose=False)
     assert [s["step"] for s in first] == [100, 200]
     with pytest.raises(ValueError, match="--resume"):
         train(SACConfig(steps=300, out=out, **TINY), verbose=False)

@@ -79,7 +79,7 @@ def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_
     from minsubdt_jax.rundir import Interrupted, exit_code
     from minsubdt_jax.train import main, train
 
-    from minsubdt_jax import train as train_module
+    from minsubdt_jax import loop
 
     out = tmp_path / "run"
     cfg, _ = parse_args([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "1"])
@@ -88,7 +88,7 @@ def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_
     class Bar:  # the progress bar: it moves within a chunk (10 pieces of 1 step in the smoke preset's chunk of 10)
         def __getattr__(self, name):
             return moves.append if name == "update" else (lambda *a, **k: None)
-    monkeypatch.setattr(train_module, "progress", lambda **_: Bar())
+    monkeypatch.setattr(loop, "progress", lambda **_: Bar())
 
     def ctrl_c(step, record):
         if "loss" in record and step == 10:

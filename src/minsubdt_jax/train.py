@@ -44,7 +44,8 @@ from .flags import add_flags, load_fields
 from .loggers import Loggers, logger_names
 from .methods import RETURNS_ALIASES
 from .parallel import gather, replicate
-from .rundir import InterruptFlag, Interrupted, RunLock, exit_code, json_text, progress, truncate_metrics
+from .loop import chunk_loop
+from .rundir import RunLock, exit_code, json_text, truncate_metrics
 from .runresults import METRICS_FILE_JSONL, finish_run, periodic_eval
 from .runsetup import RunPlan, plan_run, prepare_models, start_run
 
@@ -102,49 +103,48 @@ def _logger(run: RunPlan, start: int, progress_fn):
 
 
 def train_loop(run: RunPlan, agent, tx, state, data, data_axis, mngr, start: int, log, per_model):
-    """Chunks of ``cfg.chunk_steps`` steps until ``cfg.steps``, each in ~10 dispatches so the bar moves, its loss
-    logged, an evaluation every ``cfg.eval_every`` steps, a checkpoint after each; Ctrl-C stops after the current
-    chunk's checkpoint. ``(state, step, seconds)``."""
+    """Chunks of ``cfg.chunk_steps`` steps until ``cfg.steps`` (:func:`~minsubdt_jax.loop.chunk_loop`: Ctrl-C stops
+    after the current chunk's checkpoint), each in ~10 dispatches so the bar moves, its loss logged, an evaluation
+    every ``cfg.eval_every`` steps, a checkpoint after each. ``(state, step, seconds)``."""
     cfg = run.cfg
-    chunks, t0, step = {}, time.time(), start
-    bar = progress(total=cfg.steps, initial=start, disable=not run.verbose)
-    stop = InterruptFlag()  # Ctrl-C: this chunk and its checkpoint first, then one line with the resume command
-    try:  # an interruption (Ctrl-C, an error, a progress_fn that stops the run) still completes the last checkpoint
-        while step < cfg.steps:
-            n = min(cfg.chunk_steps, cfg.steps - step)
-            m = piece_steps(n, agent.whole_chunks)
-            if m not in chunks:
-                if run.verbose and not chunks:
-                    bar.write("compiling the train step (the first chunk waits for it) ...")
-                chunks[m] = make_train_chunk(agent, tx, run.batch_size, m, run.mesh, seed_axis=True,
-                                             data_axis=data_axis, ema_decay=cfg.ema_decay)
-            tc, pieces = time.time(), []
-            for _ in range(n // m):  # the same steps as one scan of n (the state carries rng and step); the bar moves
-                state, piece = chunks[m](state, data)
-                pieces.append(jax.block_until_ready(piece))
-                bar.update(m)
-            losses, parts = merge_losses(pieces)  # [n, S]; a critic agent's losses by name beside
-            per_seed = np.asarray(gather(losses)).mean(0)  # [S]
-            if not np.isfinite(per_seed).all():
-                last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
-                raise ValueError(f"training diverged: non-finite loss {per_seed.tolist()} in steps {step + 1}-"
-                                 f"{step + n} (not checkpointed; {last}); try a lower --learning-rate")
-            step += n
-            # records first, checkpoint last: a resumed run drops the records past its checkpoint and redoes them
-            log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
-                 **({"loss_parts": {k: float(np.mean(gather(v))) for k, v in parts.items()}} if parts else {}),
-                 "chunk_seconds": time.time() - tc})
-            if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
-                log(periodic_eval(run, agent, state, step, per_model))
-            mngr.save(step, args=ocp.args.StandardSave(state))
-            bar.set_postfix(loss=f"{per_seed.mean():.4f}")
-            if stop.raised and step < cfg.steps:
-                raise Interrupted(f"stopped after the checkpoint at step {step} of {cfg.steps}; resume with: python "
-                                  f"-m minsubdt_jax.train --config {os.path.join(run.out, 'config.json')} --resume")
-    finally:
-        stop.restore()
-    bar.close()
+    chunks, t0 = {}, time.time()
+
+    def chunk(step, bar):
+        nonlocal state
+        n = min(cfg.chunk_steps, cfg.steps - step)
+        m = piece_steps(n, agent.whole_chunks)
+        if m not in chunks:
+            if run.verbose and not chunks:
+                bar.write("compiling the train step (the first chunk waits for it) ...")
+            chunks[m] = make_train_chunk(agent, tx, run.batch_size, m, run.mesh, seed_axis=True, data_axis=data_axis,
+                                         ema_decay=cfg.ema_decay)
+        tc, pieces = time.time(), []
+        for _ in range(n // m):  # the same steps as one scan of n (the state carries rng and step); the bar moves
+            state, piece = chunks[m](state, data)
+            pieces.append(jax.block_until_ready(piece))
+            bar.update(m)
+        losses, parts = merge_losses(pieces)  # [n, S]; a critic agent's losses by name beside
+        per_seed = np.asarray(gather(losses)).mean(0)  # [S]
+        if not np.isfinite(per_seed).all():
+            last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
+            raise ValueError(f"training diverged: non-finite loss {per_seed.tolist()} in steps {step + 1}-"
+                             f"{step + n} (not checkpointed; {last}); try a lower --learning-rate")
+        step += n
+        log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
+             **({"loss_parts": {k: float(np.mean(gather(v))) for k, v in parts.items()}} if parts else {}),
+             "chunk_seconds": time.time() - tc})
+        if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
+            log(periodic_eval(run, agent, state, step, per_model))
+        bar.set_postfix(loss=f"{per_seed.mean():.4f}")
+        return step
+
+    def save(step, stopping):
+        mngr.save(step, args=ocp.args.StandardSave(state))
+
+    resume = f"python -m minsubdt_jax.train --config {os.path.join(run.out, 'config.json')} --resume"
+    step = chunk_loop(start, cfg.steps, chunk, save, resume=resume, verbose=run.verbose)
     return state, step, time.time() - t0
+
 
 def parse_args(argv=None) -> tuple[Config, bool]:
     """``(config, resume)`` from the command line: the preset's values, overridden by the flags given."""

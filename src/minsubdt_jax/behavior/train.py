@@ -34,7 +34,8 @@ from flax import struct
 
 from ..caches import enable_compilation_cache
 from ..envs import MjxEnv, env_spec, make_rollout
-from ..rundir import check_run_dir, exit_code, progress, truncate_metrics, write_atomic
+from ..loop import chunk_loop
+from ..rundir import check_run_dir, exit_code, truncate_metrics, write_atomic
 from .config import SACConfig, parse_args, validate
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
 from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
@@ -219,11 +220,12 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     metrics_path, snaps_path = os.path.join(out, "metrics.jsonl"), os.path.join(out, "snapshots.jsonl")
     truncate_metrics(metrics_path, start)
     truncate_metrics(snaps_path, start)
-    bar = progress(total=cfg.steps, initial=start, disable=not verbose, unit="env-step")
     last_return = float("nan")
-    while int(state.env_steps) < cfg.steps:
+
+    def chunk(step, bar):
+        nonlocal state, env_state, last_return
         t0 = time.time()
-        explore = int(state.env_steps) < cfg.min_replay
+        explore = step < cfg.min_replay
         state, env_state, m = sac.chunk()(state, env_state, jnp.asarray(explore))
         m = {k: float(v) for k, v in jax.device_get(m).items()
              if not explore or k.startswith("train_")}  # no update metrics in the warm-up: there were no updates
@@ -236,26 +238,41 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
         with open(metrics_path, "a") as f:
             f.write(json.dumps(row) + "\n")
         if step % cfg.eval_every == 0 or step >= cfg.steps:
-            te = time.time()
-            returns = sac.evaluate(state.actor_params, jax.random.fold_in(jax.random.PRNGKey(cfg.seed + 1), step))
-            name = f"step_{step:08d}.npz"
-            save_snapshot(os.path.join(out, "snapshots", name), state.actor_params, env=sac.spec.name, step=step,
-                          return_mean=returns.mean())
-            rec = {"step": step, "snapshot": name, "return_mean": float(returns.mean()),
-                   "return_std": float(returns.std()), "episodes": len(returns),
-                   "wall_seconds": float(state.wall_seconds), "eval_seconds": time.time() - te}
-            with open(snaps_path, "a") as f:
-                f.write(json.dumps(rec) + "\n")
-            mngr.save(step, args=ocp.args.StandardSave(state))
-            mngr.wait_until_finished()
-            if verbose:
-                bar.write(f"step {step}: eval return {rec['return_mean']:.1f} ± {rec['return_std']:.1f} "
-                          f"({rec['episodes']} episodes), wall {rec['wall_seconds']:.0f} s")
+            _snapshot(sac, state, step, out, snaps_path, bar if verbose else None)
         bar.set_postfix(ret=f"{last_return:.0f}", alpha=f"{m.get('alpha', 1.0):.3f}")
         bar.update(cfg.chunk_steps)
-    bar.close()
+        return step
+
+    def save(step, stopping):  # at each snapshot (the state holds the replay buffer), and on Ctrl-C
+        if step % cfg.eval_every == 0 or step >= cfg.steps or stopping:
+            mngr.save(step, args=ocp.args.StandardSave(state))
+            mngr.wait_until_finished()
+
+    chunk_loop(start, cfg.steps, chunk, save, resume=resume_command(cfg), verbose=verbose, unit="env-step")
     with open(snaps_path) as f:
         return [json.loads(ln) for ln in f if ln.strip()]
+
+
+def _snapshot(sac, state, step: int, out: str, snaps_path: str, bar) -> None:
+    """Evaluate the actor at ``step``, save it as a snapshot and append its record to ``snapshots.jsonl``."""
+    te = time.time()
+    returns = sac.evaluate(state.actor_params, jax.random.fold_in(jax.random.PRNGKey(sac.cfg.seed + 1), step))
+    name = f"step_{step:08d}.npz"
+    save_snapshot(os.path.join(out, "snapshots", name), state.actor_params, env=sac.spec.name, step=step,
+                  return_mean=returns.mean())
+    rec = {"step": step, "snapshot": name, "return_mean": float(returns.mean()), "return_std": float(returns.std()),
+           "episodes": len(returns), "wall_seconds": float(state.wall_seconds), "eval_seconds": time.time() - te}
+    with open(snaps_path, "a") as f:
+        f.write(json.dumps(rec) + "\n")
+    if bar is not None:
+        bar.write(f"step {step}: eval return {rec['return_mean']:.1f} ± {rec['return_std']:.1f} "
+                  f"({rec['episodes']} episodes), wall {rec['wall_seconds']:.0f} s")
+
+
+def resume_command(cfg: SACConfig) -> str:
+    """The command that continues ``cfg``'s run: its flags that differ from the defaults, and ``--resume``."""
+    flags = [f"--{k.replace('_', '-')} {v}" for k, v in dataclasses.asdict(cfg).items() if v != getattr(SACConfig, k)]
+    return " ".join(["python -m minsubdt_jax.behavior.train", *flags, "--resume"])
 
 
 def main(argv=None) -> int:
