@@ -91,12 +91,12 @@ def pool_key(c: dict, default: dict) -> str:
     (``minsubdt_jax.agents.result_fields``: BRAC-v at alpha 1 and 3 are two settings, a DT's file ignores the
     critics' fields) but the final evaluation's size (a curve reads the periodic ones). An older file's missing
     field counts at its default, which it ran with."""
-    from minsubdt_jax.agents import result_fields
+    from minsubdt_jax.agents import AGENTS, result_fields
     from minsubdt_jax.methods import METHODS
 
     agents = {METHODS[m].agent for m in c["config"].get("method", default["method"]).split(",")}
     keys = sorted(frozenset({"env", "dataset"}).union(*(result_fields(a) for a in agents)) - {"eval_episodes"})
-    revision = [c.get("dt_revision", 1)] if "dt" in agents else []  # the DT's code
+    revision = [c.get("dt_revision", 1)] if any(AGENTS[a].revision for a in agents) else []  # the model's code
     return json.dumps([c["dataset"]["sha256"]] + revision + [c["config"].get(k, default[k]) for k in keys])
 
 

@@ -10,7 +10,6 @@ import subprocess
 
 import numpy as np
 
-from minsubdt_jax.agents.dt.networks import DT_REVISION
 from minsubdt_jax.agents import AGENTS, missing_presets, result_fields
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
@@ -202,8 +201,9 @@ def check_not_stale(result_path, cells, expected) -> None:
                 saved = json.load(f)
             diff = {"config": ("not recorded", "...")} if "config" not in saved else stale_fields(saved["config"],
                                                                                                  expected(m))
-            if ALL_METHODS[m].agent == "dt" and saved.get("dt_revision", 1) != DT_REVISION:  # another model's code
-                diff["dt_revision"] = (saved.get("dt_revision", 1), DT_REVISION)
+            revision = AGENTS[ALL_METHODS[m].agent].revision  # another revision of the model's code: not this result
+            if revision is not None and saved.get("dt_revision", 1) != revision:
+                diff["dt_revision"] = (saved.get("dt_revision", 1), revision)
             stale += [f"{run_name(e, d, m, s)}: " + ", ".join(f"{k} {a!r} (now {b!r})" for k, (a, b) in diff.items())
                       ] if diff else []
     if stale:

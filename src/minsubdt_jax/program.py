@@ -17,7 +17,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .agents.base import PolicyInputs
-from .agents.dt.agent import train_step_bytes
 from .costs import cost_metrics
 from .evaluation import evaluate_policy
 from .methods import Method
@@ -142,11 +141,12 @@ def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
     return rec
 
 
-def check_memory(cfg, agent: str, n_models: int, n_devices: int) -> None:
-    """A DT configuration whose train step cannot fit in memory (a long context, a huge batch) is one error here,
-    before anything is written, not an out-of-memory kill without a message (:func:`train_step_bytes`)."""
+def check_memory(cfg, agent, n_models: int, n_devices: int) -> None:
+    """A configuration whose train step cannot fit in memory (the DT's: a long context, a huge batch) is one error
+    here, before anything is written, not an out-of-memory kill without a message (``agent``: its
+    :class:`~minsubdt_jax.agents.AgentInfo`, whose ``step_bytes`` estimates it)."""
     have = available_bytes()
-    need = train_step_bytes(cfg, n_models) / n_devices if agent == "dt" else 0
+    need = agent.step_bytes(cfg, n_models) / n_devices if agent.step_bytes is not None else 0
     if have is not None and need > have:
         raise ValueError(f"one train step of {n_models} model(s) at --context-len {cfg.context_len}, --batch-size "
                          f"{cfg.batch_size}, --embed-dim {cfg.embed_dim}, --n-layers {cfg.n_layers} needs ~"

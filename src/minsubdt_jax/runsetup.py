@@ -86,7 +86,7 @@ def plan_run(cfg: Config, resume: bool, verbose: bool, metrics) -> RunPlan:
                   dataclasses.asdict(Config()))
     batch_size = batch_size_of(methods[0].agent, cfg)
     mesh = make_mesh(cfg.devices, batch_size)  # checked before anything is written
-    check_memory(cfg, methods[0].agent, len(cfg.datasets) * len(methods) * cfg.seeds, mesh.size)
+    check_memory(cfg, agent, len(cfg.datasets) * len(methods) * cfg.seeds, mesh.size)
     physics = resolve_physics(cfg.physics, mesh)
     if metrics is not None and cfg.costs is not None:
         raise ValueError("give the cost metrics once: as cfg.costs (names) or as train(..., metrics=...)")

@@ -16,7 +16,8 @@ from .awr.agent import make_awr_agent
 from .bear.agent import make_bear_agent
 from .brac.agent import make_brac_agent
 from .cql.agent import make_cql_agent
-from .dt.agent import make_dt_agent
+from .dt.agent import make_dt_agent, train_step_bytes
+from .dt.networks import DT_REVISION
 from .iql.agent import make_iql_agent
 from .mlp.agent import make_mlp_agent
 from .td3bc.agent import make_td3bc_agent
@@ -49,6 +50,12 @@ class AgentInfo:
         resumed run keeps its ``--steps``.
       one_dataset: its step reads every stored episode (AWR's iteration standardises advantages over them), so
         its datasets cannot share one program.
+      step_bytes: ``step_bytes(cfg, n_models) -> bytes``, an estimate of one train step's memory, which the run
+        checks before it writes anything (the DT's: a long context or a huge batch is one error, not an
+        out-of-memory kill); ``None``: not checked.
+      revision: the revision of its model's code where a change made it learn differently (the DT's
+        ``DT_REVISION``, recorded in every results.json as ``dt_revision``): the experiments never keep or pool
+        results of two revisions as one.
     """
 
     make: Callable
@@ -57,13 +64,16 @@ class AgentInfo:
     transitions: bool = False
     fixed_steps: bool = False
     one_dataset: bool = False
+    step_bytes: Callable | None = None
+    revision: int | None = None
 
 
 AGENTS = {
     # the DT family's preset values are the DT's own (chosen by its curves, docs/convergence.md)
     "dt": AgentInfo(make_dt_agent, _ADAMW | {"context_len", "embed_dim", "n_layers", "n_heads", "dropout",
                                                        "precision"},
-                    presets={"study": {}}),
+                    presets={"study": {}}, step_bytes=train_step_bytes,
+                    revision=DT_REVISION),
     "mlp": AgentInfo(make_mlp_agent, _ADAMW | {"mlp_hidden", "mlp_layers"}),
     "iql": AgentInfo(make_iql_agent, _CRITIC | {"iql_expectile", "iql_beta"}, {"study": dict(_STUDY, steps=60_000)},
                      transitions=True, fixed_steps=True),
