@@ -12,7 +12,7 @@ import pytest
 from minsubdt_jax.agents import make_agent
 from minsubdt_jax.agents.base import PolicyInputs, init_state, make_train_chunk, optimizer_for
 from minsubdt_jax.agents.cql.losses import cql_logsumexp, temperature_loss
-from minsubdt_jax.agents.critic_networks import tanh_gaussian_sample
+from minsubdt_jax.networks import tanh_gaussian_sample
 from minsubdt_jax.agents.iql.losses import advantage_weights, expectile_loss
 from minsubdt_jax.agents.td3bc.losses import bc_lambda
 from minsubdt_jax.config import Config

@@ -1,5 +1,6 @@
-"""The critic agents' networks, one family for all of them (as unifloral's): an MLP torso, an ``nn.vmap``-ed
-ensemble of Q-functions, a state-value net, and three actors: deterministic (TD3+BC), a Gaussian with a tanh on
+"""The critic agents' networks, one family for all of them (as unifloral's), on the shared MLP torso and Q-function
+ensemble (:mod:`minsubdt_jax.networks`, with the Gaussian's samples and log-densities): a state-value net, and three
+actors: deterministic (TD3+BC), a Gaussian with a tanh on
 its mean and a state-independent log-std (IQL's ``NormalTanhPolicy`` without a squashed distribution), and a
 tanh-squashed Gaussian with a state-dependent log-std (SAC, CQL). Inputs are normalised states ``[B, obs]`` and
 actions in ``[-1, 1]``; the leading dimensions may be anything. ``dtype`` (``--precision bf16``: bfloat16) is the
@@ -10,40 +11,9 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import flax.linen as nn
-import jax
 import jax.numpy as jnp
 
-from ..networks import MLP
-
-
-def f32(x):
-    return x.astype(jnp.float32)
-
-
-class Critic(nn.Module):
-    """``(states [..., obs], actions [..., act]) -> Q [...]``."""
-
-    hidden: Sequence[int]
-    dtype: Any = None
-
-    @nn.compact
-    def __call__(self, states, actions):
-        h = MLP(self.hidden, self.dtype)(jnp.concatenate([states, actions], -1))
-        return f32(nn.Dense(1, dtype=self.dtype)(h))[..., 0]
-
-
-class Critics(nn.Module):
-    """``num`` independent :class:`Critic` s in one module (``nn.vmap`` over their parameters): ``Q [num, ...]``."""
-
-    hidden: Sequence[int]
-    num: int = 2
-    dtype: Any = None
-
-    @nn.compact
-    def __call__(self, states, actions):
-        ensemble = nn.vmap(Critic, variable_axes={"params": 0}, split_rngs={"params": True}, in_axes=None,
-                           out_axes=0, axis_size=self.num)
-        return ensemble(self.hidden, self.dtype)(states, actions)
+from ..networks import MLP, f32, gaussian_log_prob, tanh_correction
 
 
 class Value(nn.Module):
@@ -67,11 +37,6 @@ class DeterministicActor(nn.Module):
     @nn.compact
     def __call__(self, states):
         return jnp.tanh(f32(nn.Dense(self.act_dim, dtype=self.dtype)(MLP(self.hidden, self.dtype)(states))))
-
-
-def gaussian_log_prob(x, mean, log_std):
-    """Log-density ``[...]`` of a diagonal Gaussian at ``x [..., act]``, summed over the action dims."""
-    return jnp.sum(-0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi), -1)
 
 
 class TanhMeanGaussianActor(nn.Module):
@@ -111,30 +76,13 @@ class TanhGaussianActor(nn.Module):
         return mean, jnp.clip(m * raw + o, -20.0, 2.0)
 
 
-def _tanh_correction(u):
-    """``sum log(1 - tanh(u)^2)`` over the action dims, as ``2 (log 2 - u - softplus(-2u))`` (stable)."""
-    return jnp.sum(2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u)), -1)
-
-
 def tanh_gaussian_log_prob(actions, mean, log_std, margin: float = 1e-3):
     """Log-density ``[...]`` of ``tanh(N(mean, std))`` at ``actions [..., act]``, clipped ``margin`` inside
     ``[-1, 1]`` first (BRAC's ``clip_eps``; the data's actions may sit on the bounds)."""
     u = jnp.arctanh(jnp.clip(actions, -1.0 + margin, 1.0 - margin))
-    return gaussian_log_prob(u, mean, log_std) - _tanh_correction(u)
+    return gaussian_log_prob(u, mean, log_std) - tanh_correction(u)
 
 
 def repeat(x, n: int):
     """``[n, *x.shape]``: ``n`` copies of ``x`` on a new leading axis (samples per state)."""
     return jnp.broadcast_to(x, (n, *x.shape))
-
-
-def gaussian_sample(rng, mean, log_std):
-    """A reparameterised sample ``mean + std * eps`` of the pre-tanh Gaussian."""
-    return mean + jnp.exp(log_std) * jax.random.normal(rng, mean.shape)
-
-
-def tanh_gaussian_sample(rng, mean, log_std):
-    """``(actions [..., act], log_prob [...])``: a reparameterised sample of ``tanh(N(mean, std))`` and its
-    log-density, with the tanh's change of variables ``log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u))``."""
-    u = gaussian_sample(rng, mean, log_std)
-    return jnp.tanh(u), gaussian_log_prob(u, mean, log_std) - _tanh_correction(u)

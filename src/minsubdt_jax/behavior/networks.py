@@ -1,4 +1,4 @@
-"""SAC networks: a tanh-squashed Gaussian actor and a pair of Q-functions (batched with ``nn.vmap``).
+"""SAC networks: a tanh-squashed Gaussian actor and a pair of Q-functions (the shared ensemble, :mod:`minsubdt_jax.networks`).
 
 The actor is also the behaviour policy that records datasets: ``policy_step`` is the rollout-policy
 signature of :func:`minsubdt_jax.envs.make_rollout` and samples from the stochastic policy, as D4RL did.
@@ -9,10 +9,9 @@ from __future__ import annotations
 from typing import Sequence
 
 import flax.linen as nn
-import jax
 import jax.numpy as jnp
 
-from ..networks import MLP
+from ..networks import MLP, Critics, tanh_gaussian_sample
 
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
 
@@ -31,35 +30,16 @@ class Actor(nn.Module):
         return mean, log_std
 
 
-class QNetwork(nn.Module):
-    hidden: Sequence[int] = (256, 256)
-
-    @nn.compact
-    def __call__(self, obs, action):
-        x = MLP(self.hidden)(jnp.concatenate([obs, action], -1))
-        return nn.Dense(1)(x)[..., 0]
-
-
-class DoubleCritic(nn.Module):
-    """``(obs [B, obs], action [B, act]) -> q [2, B]``: two independent Q-networks evaluated as one batch."""
-
-    hidden: Sequence[int] = (256, 256)
-
-    @nn.compact
-    def __call__(self, obs, action):
-        vq = nn.vmap(QNetwork, variable_axes={"params": 0}, split_rngs={"params": True}, in_axes=None,
-                     out_axes=0, axis_size=2)
-        return vq(self.hidden)(obs, action)
+def DoubleCritic(hidden: Sequence[int] = (256, 256)) -> Critics:
+    """``(obs [B, obs], action [B, act]) -> q [2, B]``: two independent Q-networks evaluated as one batch (the shared
+    :class:`~minsubdt_jax.networks.Critics`, under the parameter name SAC's critics always had)."""
+    return Critics(tuple(hidden), num=2, member_name="VmapQNetwork_0")
 
 
 def sample_tanh_gaussian(mean, log_std, rng):
     """A reparameterised sample ``a = tanh(u)``, ``u ~ N(mean, exp(log_std))``, and its log-density ``[...]``
-    (with the tanh change of variables, ``log(1 - tanh(u)^2) = 2 (log 2 - u - softplus(-2u))``)."""
-    std = jnp.exp(log_std)
-    u = mean + std * jax.random.normal(rng, mean.shape)
-    logp_u = -0.5 * (((u - mean) / std) ** 2 + 2 * log_std + jnp.log(2 * jnp.pi))
-    log_det = 2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u))
-    return jnp.tanh(u), jnp.sum(logp_u - log_det, axis=-1)
+    (:func:`~minsubdt_jax.networks.tanh_gaussian_sample`, the critic agents' too)."""
+    return tanh_gaussian_sample(rng, mean, log_std)
 
 
 def actor_from_params(params) -> Actor:

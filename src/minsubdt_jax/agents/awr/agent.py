@@ -24,10 +24,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ...networks import MLP
+from ...networks import MLP, f32
 from ...data import draw_episodes
 from ..actor_critic import TransitionAgent
-from ..critic_networks import f32
 from ..base import PolicyInputs, TrainState, ema_update
 from .losses import actor_loss, advantage_weights, lambda_returns
 

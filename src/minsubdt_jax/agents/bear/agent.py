@@ -20,7 +20,8 @@ import optax
 from ...envs.spec import env_spec
 from ..actor_critic import CriticAgentBase, critic_fields
 from ..base import PolicyInputs
-from ..critic_networks import Critics, TanhGaussianActor
+from ...networks import Critics
+from ..critic_networks import TanhGaussianActor
 from .losses import bear_losses
 from .networks import VAE
 

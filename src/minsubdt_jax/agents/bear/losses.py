@@ -7,7 +7,8 @@ import jax
 import jax.numpy as jnp
 
 from ...data import Transitions
-from ..critic_networks import gaussian_sample, repeat
+from ...networks import gaussian_sample
+from ..critic_networks import repeat
 from .networks import decode_samples
 
 sg = jax.lax.stop_gradient

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from ...networks import MLP
-from ..critic_networks import f32
+from ...networks import f32
 
 
 class VAE(nn.Module):

@@ -25,7 +25,8 @@ import jax.numpy as jnp
 import optax
 
 from ..actor_critic import CriticAgentBase, critic_fields, deterministic_policy
-from ..critic_networks import Critics, TanhGaussianActor
+from ...networks import Critics
+from ..critic_networks import TanhGaussianActor
 from .losses import brac_losses
 
 LOG_STD_RANGE = (-5.0, 0.0)

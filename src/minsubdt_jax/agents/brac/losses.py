@@ -6,7 +6,8 @@ from __future__ import annotations
 import jax
 
 from ...data import Transitions
-from ..critic_networks import repeat, tanh_gaussian_log_prob, tanh_gaussian_sample
+from ...networks import tanh_gaussian_sample
+from ..critic_networks import repeat, tanh_gaussian_log_prob
 
 sg = jax.lax.stop_gradient
 

@@ -12,7 +12,8 @@ import jax.numpy as jnp
 import optax
 
 from ..actor_critic import CriticAgentBase, critic_fields, deterministic_policy
-from ..critic_networks import Critics, TanhGaussianActor
+from ...networks import Critics
+from ..critic_networks import TanhGaussianActor
 from .losses import cql_losses
 
 

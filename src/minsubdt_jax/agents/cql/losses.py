@@ -7,7 +7,8 @@ import jax
 import jax.numpy as jnp
 
 from ...data import Transitions
-from ..critic_networks import repeat, tanh_gaussian_sample
+from ...networks import tanh_gaussian_sample
+from ..critic_networks import repeat
 
 sg = jax.lax.stop_gradient
 

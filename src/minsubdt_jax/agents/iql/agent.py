@@ -11,7 +11,8 @@ import jax.numpy as jnp
 import optax
 
 from ..actor_critic import CriticAgentBase, critic_fields, deterministic_policy
-from ..critic_networks import Critics, TanhMeanGaussianActor, Value
+from ...networks import Critics
+from ..critic_networks import TanhMeanGaussianActor, Value
 from .losses import iql_losses
 
 

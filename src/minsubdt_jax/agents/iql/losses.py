@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 
 from ...data import Transitions
-from ..critic_networks import gaussian_log_prob
+from ...networks import gaussian_log_prob
 
 sg = jax.lax.stop_gradient
 ADVANTAGE_WEIGHT_MAX = 100.0  # exp(beta * advantage) is clipped here (the reference's 100)

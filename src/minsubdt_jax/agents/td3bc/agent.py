@@ -11,7 +11,8 @@ import jax.numpy as jnp
 import optax
 
 from ..actor_critic import CriticAgentBase, critic_fields, deterministic_policy
-from ..critic_networks import Critics, DeterministicActor
+from ...networks import Critics
+from ..critic_networks import DeterministicActor
 from .losses import td3bc_losses
 
 
