@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from .c_backend import Sims
-from .rules import DYNAMICS, TORSO, env_rules, mj_model, observe
+from .rules import TORSO, env_rules, mj_model, observe
+from .spec import env_spec
 
 DEFAULT_TOLERANCE = 1e-3  # largest |Δobs| of a transition counted as reproduced
 
@@ -32,7 +33,7 @@ def replay_errors(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: 
     qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
     if qpos.shape[0] != ep.size or qvel.shape[0] != ep.size:
         raise ValueError(f"the physics states hold {qpos.shape[0]} rows, the data {ep.size} transitions")
-    nq = mj_model(env, DYNAMICS[0]).nq
+    nq = mj_model(env, next(iter(env_spec(env).dynamics))).nq
     if qpos.shape[1] != nq:
         raise ValueError(f"the recorded qpos has {qpos.shape[1]} entries, {env} has {nq}")
     has_next = np.flatnonzero(t + 1 < lengths[ep])
@@ -42,7 +43,7 @@ def replay_errors(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: 
     e, s = ep[pick], t[pick]
     q, v, a = qpos[pick], qvel[pick], act[e, s]
     source = _source_convention(env, q, v, obs[e, s])
-    return {dyn: np.abs(_step_observe(env, dyn, source, q, v, a) - obs[e, s + 1]).max(axis=1) for dyn in DYNAMICS}
+    return {dyn: np.abs(_step_observe(env, dyn, source, q, v, a) - obs[e, s + 1]).max(axis=1) for dyn in env_spec(env).dynamics}
 
 
 def _step_observe(env: str, dynamics: str, source: str, qpos, qvel, actions) -> np.ndarray:
@@ -101,7 +102,7 @@ def _source_convention(env: str, qpos, qvel, obs) -> str:
     """The dynamics whose model the recorded ``qpos`` belongs to: the one whose observation of the recorded state is
     nearest the recorded observation (the models differ in where the root z joint's zero lies)."""
     err = {}
-    for dyn in DYNAMICS:
+    for dyn in env_spec(env).dynamics:
         sims = Sims(env, dyn, len(qpos), threads=0)
         sims.set_state(qpos, qvel)
         err[dyn] = float(np.median(np.abs(observe(env_rules(env, dyn), qpos, qvel, np.array(sims.xpos[:, TORSO]),

@@ -17,10 +17,10 @@ import jax
 import numpy as np
 
 from .c_backend import Sims
-from .rules import DYNAMICS, forward_position, mj_model, observe, reset_state, step_outcome
+from .rules import forward_position, mj_model, observe, reset_state, step_outcome
 from .spec import ENVS, env_spec
 
-IDS = {(env, dyn): f"minsubdt/{env.capitalize()}-{dyn}-v0" for env in ENVS for dyn in DYNAMICS}
+IDS = {(env, dyn): f"minsubdt/{env.capitalize()}-{dyn}-v0" for env, spec in ENVS.items() for dyn in spec.dynamics}
 
 
 class MinSubDTEnv(gym.Env):
