@@ -113,6 +113,22 @@ def test_ctrl_c_stops_after_the_chunks_checkpoint_with_one_line_and_resumes(tmp_
     assert json.loads((out / "results.json").read_text())["train"]["steps_this_run"] == 10
 
 
+def test_a_checkpoint_is_on_disk_when_its_save_returns(tmp_path):
+    """The run's and the SAC trainer's checkpoints are written synchronously (``rundir.checkpoint_manager``).
+    Orbax's asynchronous commit gives up after a timeout counted from the save: a Table 1 unit whose process was
+    stopped for ~10 minutes died at its next checkpoint ("ChainedFuture completed 2/3 futures but timed out"), as a
+    run on a laptop that sleeps would. The saved step is there for another reader at once, before any wait (with
+    the asynchronous manager it was not, 5 times of 5)."""
+    import numpy as np
+    import orbax.checkpoint as ocp
+
+    from minsubdt_jax.rundir import checkpoint_manager
+
+    mngr = checkpoint_manager(str(tmp_path / "c"), keep=2)
+    mngr.save(3, args=ocp.args.StandardSave({"x": np.arange(100_000.0)}))
+    assert ocp.CheckpointManager(str(tmp_path / "c")).latest_step() == 3
+
+
 def test_plot_into_a_missing_folder_is_one_error(tmp_path, capsys):
     from minsubdt_jax.plot import main as plot_main
 

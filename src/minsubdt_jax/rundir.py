@@ -87,6 +87,17 @@ def checkpoint_steps(ckpt_dir: str) -> list[int]:
     return [int(d) for d in os.listdir(ckpt_dir) if d.isdigit()]
 
 
+def checkpoint_manager(ckpt_dir: str, keep: int):
+    """The orbax manager of a run's checkpoints (the agents' and the SAC trainer's), keeping the last ``keep``.
+    Synchronous: a save is on disk when it returns. Orbax's asynchronous commit gives up after its timeout
+    (``AsyncOptions.timeout_secs``) counted from the save, so a machine suspended for longer (a laptop asleep, a
+    stopped job) lost the run at its next checkpoint; these states are small enough to write in place."""
+    import orbax.checkpoint as ocp
+
+    return ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=keep, create=True,
+                                                                                enable_async_checkpointing=False))
+
+
 def check_writable_dir(out: str) -> None:
     """``out`` is, or can be made, a directory we can write in: checked by creating (and removing) a temporary
     directory in it or in its nearest existing ancestor, which changes nothing."""

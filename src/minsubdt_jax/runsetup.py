@@ -24,7 +24,7 @@ from .parallel import assert_same_across_processes, init_distributed, is_main_pr
 from .pipeline import load, prepare
 from .program import check_memory, program_models, stack_models
 from .rundir import (DATASET_FILE, METRICS_FILE, RunLock, check_run_dir, check_same_data, check_same_metrics,
-                     json_text, write_atomic)
+                     checkpoint_manager, json_text, write_atomic)
 
 # Fields that may differ between a run and its resumption.
 RESUMABLE_CHANGES = ("steps", "eval_episodes", "eval_every", "eval_episodes_periodic", "out", "preset", "devices",
@@ -171,7 +171,7 @@ def start_run(run: RunPlan, lock: RunLock):
     agent = program_agent(cfg, run.methods, run.sources, len(run.chosen))
     tx = optimizer_for(agent, cfg)
     state = init_seed_states(agent, tx, [mo.seed for mo in run.models], ema=cfg.ema_decay > 0)
-    mngr = ocp.CheckpointManager(_ckpt_dir(out), options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True))
+    mngr = checkpoint_manager(_ckpt_dir(out), keep=2)
     if run.resume and mngr.latest_step() is not None:
         state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
     start = int(np.asarray(state.step)[0])

@@ -35,7 +35,7 @@ from flax import struct
 from ..caches import enable_compilation_cache
 from ..envs import MjxEnv, env_spec, make_rollout
 from ..loop import chunk_loop
-from ..rundir import check_run_dir, exit_code, truncate_metrics, write_atomic
+from ..rundir import check_run_dir, checkpoint_manager, exit_code, truncate_metrics, write_atomic
 from .config import SACConfig, parse_args, validate
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
 from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
@@ -207,7 +207,7 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     os.makedirs(os.path.join(out, "snapshots"), exist_ok=True)
     write_atomic(os.path.join(out, "config.json"), json.dumps(dataclasses.asdict(cfg), indent=2, sort_keys=True))
     state, env_state = sac.init(jax.random.PRNGKey(cfg.seed))
-    mngr = ocp.CheckpointManager(ckpt_dir, options=ocp.CheckpointManagerOptions(max_to_keep=1, create=True))
+    mngr = checkpoint_manager(ckpt_dir, keep=1)
     if resume:
         # orbax gives committed arrays, fresh ones are not, and that is part of a program's compile key: through the
         # host, so the resumed run reuses the compiled programs (persistent compilation cache) of the first one
