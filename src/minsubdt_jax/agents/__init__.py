@@ -3,7 +3,8 @@ DT and DT-architecture BC train), ``mlp`` (behaviour cloning with an MLP), and t
 ``cql``, ``brac`` (BRAC-v), ``bear`` and ``awr`` on one actor-critic base (:mod:`~minsubdt_jax.agents.actor_critic`,
 networks in :mod:`~minsubdt_jax.agents.critic_networks`). Shared pieces are in
 :mod:`minsubdt_jax.agents.base`; a new agent is a folder whose ``make_*_agent(cfg, obs_dim, act_dim,
-max_timestep)`` returns a record implementing :class:`~minsubdt_jax.agents.base.Agent`, registered below."""
+max_timestep)`` returns a record implementing :class:`~minsubdt_jax.agents.base.Agent`, registered below with
+everything the run and the experiments need to know of it (:class:`AgentInfo`)."""
 
 from __future__ import annotations
 
@@ -22,8 +23,8 @@ from .iql.agent import make_iql_agent
 from .mlp.agent import make_mlp_agent
 from .td3bc.agent import make_td3bc_agent
 
-# Config fields an agent's optimiser reads: the shared step's AdamW (DT, MLP), or a critic agent's own optimisers,
-# networks and backup (agents/actor_critic.py)
+# Config fields an agent reads beside its own: the shared step's AdamW (DT, MLP), or a critic agent's optimisers,
+# networks, backup and matmul precision (agents/actor_critic.py)
 _ADAMW = frozenset({"batch_size", "learning_rate", "weight_decay", "warmup_steps", "grad_clip", "lr_schedule"})
 _CRITIC = frozenset({"critic_batch_size", "discount", "tau", "ac_hidden", "ac_layers", "actor_lr", "critic_lr",
                      "precision"})
@@ -70,10 +71,8 @@ class AgentInfo:
 
 AGENTS = {
     # the DT family's preset values are the DT's own (chosen by its curves, docs/convergence.md)
-    "dt": AgentInfo(make_dt_agent, _ADAMW | {"context_len", "embed_dim", "n_layers", "n_heads", "dropout",
-                                                       "precision"},
-                    presets={"study": {}}, step_bytes=train_step_bytes,
-                    revision=DT_REVISION),
+    "dt": AgentInfo(make_dt_agent, _ADAMW | {"context_len", "embed_dim", "n_layers", "n_heads", "dropout", "precision"},
+                    presets={"study": {}}, step_bytes=train_step_bytes, revision=DT_REVISION),
     "mlp": AgentInfo(make_mlp_agent, _ADAMW | {"mlp_hidden", "mlp_layers"}),
     "iql": AgentInfo(make_iql_agent, _CRITIC | {"iql_expectile", "iql_beta"}, {"study": dict(_STUDY, steps=60_000)},
                      transitions=True, fixed_steps=True),
@@ -86,8 +85,8 @@ AGENTS = {
     "bear": AgentInfo(make_bear_agent, _CRITIC | {"pretrain_steps"}, {"study": dict(_STUDY, steps=60_000)},
                       transitions=True, fixed_steps=True),
     # 200 iterations of the reference's 1200 steps; its iterations swing, so a longer average
-    "awr": AgentInfo(make_awr_agent, _CRITIC - {"tau"}, {"study": dict(_STUDY, steps=240_000, chunk_steps=1200,
-                                                            ema_decay=0.9999)},
+    "awr": AgentInfo(make_awr_agent, _CRITIC - {"tau"},
+                     {"study": dict(_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999)},
                      transitions=True, one_dataset=True)}
 CRITIC_AGENTS = tuple(n for n, a in AGENTS.items() if a.transitions)  # read from the records above
 FIXED_STEPS = tuple(n for n, a in AGENTS.items() if a.fixed_steps)
