@@ -79,7 +79,7 @@ def snapshot(a) -> dict:
     from minsubdt_jax.data import resolve_dataset
     from minsubdt_jax.references import normalized_score
     from minsubdt_jax.agents.dt.networks import DT_REVISION
-    from minsubdt_jax.train import platform
+    from minsubdt_jax.runresults import platform
 
     out = os.path.join(a.runs_root, name_of(a))
     with open(os.path.join(out, "config.json")) as f:
