@@ -35,16 +35,16 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
+from .agents import preset_config
 from .agents.base import make_train_chunk, merge_losses, piece_steps
 from .caches import enable_compilation_cache
-from .agents import preset_config
 from .config import CHOICES, PRESETS, Config, validate
 from .costs import describe_metrics
 from .flags import add_flags, load_fields
 from .loggers import Loggers, logger_names
+from .loop import chunk_loop
 from .methods import RETURNS_ALIASES
 from .parallel import gather, replicate
-from .loop import chunk_loop
 from .rundir import RunLock, exit_code, json_text, truncate_metrics
 from .runresults import METRICS_FILE_JSONL, finish_run, periodic_eval
 from .runsetup import RunPlan, plan_run, prepare_models, start_run
@@ -73,10 +73,7 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
         agent, tx, state, mngr, start = start_run(run, lock)
         state, data = replicate((state, data), run.mesh)
         log, loggers = _logger(run, start, progress_fn)
-        try:
-            state, step, seconds = train_loop(run, agent, tx, state, data, data_axis, mngr, start, log, per_model)
-        finally:
-            mngr.wait_until_finished()
+        state, step, seconds = train_loop(run, agent, tx, state, data, data_axis, mngr, start, log, per_model)
         return finish_run(run, agent, state, step, start, seconds, preps, per_model, log, loggers)
     finally:
         lock.release()

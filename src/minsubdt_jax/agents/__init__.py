@@ -89,7 +89,6 @@ AGENTS = {
                      {"study": dict(_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999)},
                      transitions=True, one_dataset=True)}
 CRITIC_AGENTS = tuple(n for n, a in AGENTS.items() if a.transitions)  # read from the records above
-FIXED_STEPS = tuple(n for n, a in AGENTS.items() if a.fixed_steps)
 
 
 def agent_of(method: str) -> str:
@@ -102,8 +101,8 @@ def preset_config(name: str, method: str = "minsubdt"):
     (:data:`~minsubdt_jax.config.PRESETS`), with its agent's own over them (:attr:`AgentInfo.presets`)."""
     from ..config import PRESETS  # here: the config reads the envs, which the agents do not need
 
-    first = method.split(",")[0].strip()  # an unknown one is validate's to refuse
-    own = AGENTS[METHODS[first].agent].presets.get(name, {}) if first in METHODS else {}
+    known = method.split(",")[0].strip() in METHODS  # an unknown one is validate's to refuse
+    own = AGENTS[agent_of(method)].presets.get(name, {}) if known else {}
     return dataclasses.replace(PRESETS[name], method=method, **own)
 
 

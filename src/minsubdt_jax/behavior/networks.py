@@ -1,4 +1,5 @@
-"""SAC networks: a tanh-squashed Gaussian actor and a pair of Q-functions (the shared ensemble, :mod:`minsubdt_jax.networks`).
+"""SAC networks: a tanh-squashed Gaussian actor and a pair of Q-functions (the shared ensemble,
+:mod:`minsubdt_jax.networks`).
 
 The actor is also the behaviour policy that records datasets: ``policy_step`` is the rollout-policy
 signature of :func:`minsubdt_jax.envs.make_rollout` and samples from the stochastic policy, as D4RL did.

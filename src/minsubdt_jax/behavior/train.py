@@ -222,6 +222,9 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
     truncate_metrics(snaps_path, start)
     last_return = float("nan")
 
+    def snapshot_due(step):  # an evaluated snapshot, and the checkpoint beside it (the state holds the buffer)
+        return step % cfg.eval_every == 0 or step >= cfg.steps
+
     def chunk(step, bar):
         nonlocal state, env_state, last_return
         t0 = time.time()
@@ -237,16 +240,15 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
                **{k: v for k, v in m.items() if k not in ("train_return_sum",)}}
         with open(metrics_path, "a") as f:
             f.write(json.dumps(row) + "\n")
-        if step % cfg.eval_every == 0 or step >= cfg.steps:
+        if snapshot_due(step):
             _snapshot(sac, state, step, out, snaps_path, bar if verbose else None)
         bar.set_postfix(ret=f"{last_return:.0f}", alpha=f"{m.get('alpha', 1.0):.3f}")
         bar.update(cfg.chunk_steps)
         return step
 
-    def save(step, stopping):  # at each snapshot (the state holds the replay buffer), and on Ctrl-C
-        if step % cfg.eval_every == 0 or step >= cfg.steps or stopping:
+    def save(step, stopping):  # at each snapshot, and on Ctrl-C
+        if snapshot_due(step) or stopping:
             mngr.save(step, args=ocp.args.StandardSave(state))
-            mngr.wait_until_finished()
 
     chunk_loop(start, cfg.steps, chunk, save, resume=resume_command(cfg), verbose=verbose, unit="env-step")
     with open(snaps_path) as f:

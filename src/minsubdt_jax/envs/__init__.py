@@ -1,7 +1,8 @@
-"""Environments: hopper, walker, halfcheetah (and any registered: ``register_env``, one record each); their rules in two dynamics (brax, d4rl) written once
-(:mod:`~minsubdt_jax.envs.rules`), two physics backends (MJX, C MuJoCo) that run them, batched rollouts of any
-policy, and the check of which dynamics a dataset came from. The env records (:mod:`~minsubdt_jax.envs.spec`) are
-imported here; the physics loads on first use of its names, so reading an env's facts does not load MuJoCo."""
+"""Environments: hopper, walker, halfcheetah (and any registered: ``register_env``, one record each); their rules
+in two dynamics (brax, d4rl) written once (:mod:`~minsubdt_jax.envs.rules`), two physics backends (MJX, C MuJoCo)
+that run them, batched rollouts of any policy, and the check of which dynamics a dataset came from. The env records
+(:mod:`~minsubdt_jax.envs.spec`) are imported here; the physics loads on first use of its names, so reading an env's
+facts does not load MuJoCo."""
 
 import importlib
 
@@ -13,8 +14,8 @@ _LAZY = {**dict.fromkeys(("check_dynamics", "dynamics_report"), "check"),
                          "rollout"),
          **dict.fromkeys(("DYNAMICS", "env_rules", "mj_model"), "rules")}
 
-__all__ = ["DYNAMICS", "Dynamics", "ENVS", "EnvSpec", "EnvState", "MjxEnv", "PHYSICS", "Policy", "Rollout", "check_dataset",
-           "check_dynamics", "dynamics_report", "env_rules", "env_spec", "make_rollout", "make_seed_rollout",
+__all__ = ["DYNAMICS", "Dynamics", "ENVS", "EnvSpec", "EnvState", "MjxEnv", "PHYSICS", "Policy", "Rollout",
+           "check_dataset", "check_dynamics", "dynamics_report", "env_rules", "env_spec", "make_rollout", "make_seed_rollout",
            "mj_model", "physics_record", "random_policy", "register_env", "resolve_physics"]
 
 

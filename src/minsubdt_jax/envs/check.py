@@ -43,7 +43,8 @@ def replay_errors(env: str, data, qpos, qvel, *, transitions: int = 2000, seed: 
     e, s = ep[pick], t[pick]
     q, v, a = qpos[pick], qvel[pick], act[e, s]
     source = _source_convention(env, q, v, obs[e, s])
-    return {dyn: np.abs(_step_observe(env, dyn, source, q, v, a) - obs[e, s + 1]).max(axis=1) for dyn in env_spec(env).dynamics}
+    return {dyn: np.abs(_step_observe(env, dyn, source, q, v, a) - obs[e, s + 1]).max(axis=1)
+            for dyn in env_spec(env).dynamics}
 
 
 def _step_observe(env: str, dynamics: str, source: str, qpos, qvel, actions) -> np.ndarray:

@@ -58,13 +58,20 @@ def check_dynamics_name(dynamics: str) -> str:
     return dynamics
 
 
-@functools.lru_cache(maxsize=None)
-def env_rules(env: str, dynamics: str = "brax") -> Rules:
-    """The :class:`Rules` of ``env`` in ``dynamics`` (its record's :class:`~minsubdt_jax.envs.spec.Dynamics`)."""
+def env_dynamics(env: str, dynamics: str):
+    """``(spec, own)``: ``env``'s record and its :class:`~minsubdt_jax.envs.spec.Dynamics` in ``dynamics``; one
+    error where the record has none."""
     spec = env_spec(env)
     own = spec.dynamics.get(check_dynamics_name(dynamics))
     if own is None:
         raise ValueError(f"env {spec.name} has no {dynamics} dynamics; it has {sorted(spec.dynamics)}")
+    return spec, own
+
+
+@functools.lru_cache(maxsize=None)
+def env_rules(env: str, dynamics: str = "brax") -> Rules:
+    """The :class:`Rules` of ``env`` in ``dynamics`` (its record's :class:`~minsubdt_jax.envs.spec.Dynamics`)."""
+    spec, own = env_dynamics(env, dynamics)
     model = mj_model(spec.name, dynamics)
     return Rules(**dataclasses.asdict(own), env=spec.name, dynamics=dynamics,
                  dt=float(model.opt.timestep) * own.frame_skip, nv=int(model.nv))
@@ -108,10 +115,7 @@ def mj_model(env: str, dynamics: str = "brax"):
     modify it."""
     import mujoco
 
-    spec = env_spec(env)
-    own = spec.dynamics.get(check_dynamics_name(dynamics))
-    if own is None:
-        raise ValueError(f"env {spec.name} has no {dynamics} dynamics; it has {sorted(spec.dynamics)}")
+    _, own = env_dynamics(env, dynamics)
     if own.brax_loader:
         import_mjx()  # brax imports it
         from brax.io import mjcf
