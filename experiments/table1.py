@@ -74,7 +74,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.agents import preset_config
-    from minsubdt_jax.rundir import checkpoint_steps, write_atomic
+    from minsubdt_jax.rundir import Interrupted, checkpoint_steps, write_atomic
 
     check_critic_settings(preset, methods)  # before anything is written
     out_dir = result_dir(variant(preset, costs), results_root)
@@ -98,6 +98,8 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
         try:
             # resumed where a checkpoint is (a program cut before its first one starts again)
             res = train_fn(cfg, resume=bool(checkpoint_steps(os.path.join(cfg.out, "checkpoints"))), verbose=False)
+        except Interrupted:  # Ctrl-C stops the sweep, not only this unit (which resumes from its checkpoint)
+            raise
         except Exception:  # one failed program must not stop the sweep; it is reported and retried next time
             log(traceback.format_exc())
             status["failed"] += names
@@ -264,6 +266,7 @@ def main(argv=None) -> int:
                    "command that resumes the sweep in the message")
     a = p.parse_args(argv)
     from minsubdt_jax.config import PRESETS
+    from minsubdt_jax.rundir import Interrupted
 
     if a.preset not in PRESETS:
         p.error(f"--preset must be one of {list(PRESETS)}")
@@ -287,6 +290,10 @@ def main(argv=None) -> int:
                            **({"precision": a.precision} if a.precision != "f32" else {}))
         except ValueError as e:
             p.error(str(e))
+        except Interrupted:
+            print(f"interrupted: the sweep stopped after a checkpoint of the unit under way; resume with: {resume}",
+                  file=sys.stderr, flush=True)
+            return 130
         print(f"done {len(st['done'])}, already there {len(st['skipped'])}, failed {len(st['failed'])}", flush=True)
         failed = st["failed"]
     if a.action in ("all", "aggregate"):

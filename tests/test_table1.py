@@ -436,3 +436,31 @@ def test_before_the_fix_averages_compare_the_same_cells(table1, tmp_path):
     now = BASE["dt"] + 0.5
     assert f"| **average (all)** | | – | – | {now - 7:.1f} → {now:.1f} (+7.0), 1 of 2 cells | – |" in md
     assert f"| **average (without medium-replay)** | | – | – | {now - 7:.1f} → {now:.1f} (+7.0) | – |" in md
+
+
+def test_ctrl_c_stops_the_sweep_not_only_its_unit(table1, tmp_path, monkeypatch, capsys):
+    """A Ctrl-C in a unit (train's ``Interrupted``, raised after that unit's checkpoint) was counted as one failed
+    unit, and the sweep went on to train the next one. It stops the sweep; the command line says so in one line,
+    with the sweep's own resume command (exit 130)."""
+    from minsubdt_jax.rundir import Interrupted
+
+    calls = []
+
+    def pressed(cfg, resume=False, verbose=False):
+        calls.append(cfg.dataset)
+        raise Interrupted("stopped after the checkpoint at step 10 of 20; resume with: ...")
+
+    with pytest.raises(Interrupted):
+        table1.run_sweep(preset="smoke", envs=("hopper",), datasets=("medium", "medium-replay"), methods=("dt",),
+                         seeds=(0,), runs_root=str(tmp_path / "runs"), results_root=str(tmp_path / "res"),
+                         train_fn=pressed, log=lambda *_: None)
+    assert calls == ["medium"]  # the second unit never started
+
+    def sweep(*args, **kwargs):
+        raise Interrupted("...")
+
+    monkeypatch.setattr(table1, "run_sweep", sweep)
+    assert table1.main(["run", "--preset", "smoke", "--envs", "hopper", "--methods", "dt", "--seeds", "0"]) == 130
+    err = capsys.readouterr().err
+    assert err.startswith("interrupted: the sweep stopped") and err.count("\n") == 1
+    assert "resume with: python experiments/table1.py run --preset smoke --envs hopper --methods dt --seeds 0" in err
