@@ -25,6 +25,8 @@ def test_every_method_names_a_registered_agent_and_returns_aliases_map_to_method
     assert RETURNS_ALIASES == {"subdom": "minsubdt", "learned": "minsubdt-learned", "true": "dt", "none": "bc"}
     assert parse_args(["--returns", "true"])[0].method == "dt"
     assert parse_args(["--method", "bc-mlp"])[0].method == "bc-mlp"
+    # --lr is the field's usual name (and curves.py's): it sets the rate, not an abbreviation of --lr-schedule
+    assert parse_args(["--lr", "3e-4"])[0].learning_rate == 3e-4
     with pytest.raises(ValueError, match="--method must be one of"):
         get_method("no-such-method")
 

@@ -45,10 +45,11 @@ def field_help(cls) -> dict[str, str]:
 
 
 def add_flags(parser: argparse.ArgumentParser, cls, choices: dict, presets: dict | None = None,
-              default_preset: str | None = None) -> None:
+              default_preset: str | None = None, aliases: dict | None = None) -> None:
     """One ``--field-name`` flag per field of dataclass ``cls``, typed from its annotation, default ``None``
     (so that only the flags given override a preset), its help from the field's comment (:func:`field_help`) and
-    its default: the ``default_preset``'s value, with the other ``presets``' where they differ."""
+    its default: the ``default_preset``'s value, with the other ``presets``' where they differ. ``aliases`` maps a
+    field to more flag names (``{"learning_rate": ("--lr",)}``)."""
     hints, helps = typing.get_type_hints(cls), field_help(cls)
     for f in dataclasses.fields(cls):
         default = f"default: {f.default}"
@@ -61,7 +62,7 @@ def add_flags(parser: argparse.ArgumentParser, cls, choices: dict, presets: dict
               "help": f"{helps.get(f.name, '')} ({default})".replace("%", "%%").lstrip()}
         if f.name in choices:
             kw["choices"] = choices[f.name]
-        parser.add_argument("--" + f.name.replace("_", "-"), **kw)
+        parser.add_argument("--" + f.name.replace("_", "-"), *(aliases or {}).get(f.name, ()), **kw)
 
 
 def load_fields(path: str, cls, help_cmd: str) -> dict:

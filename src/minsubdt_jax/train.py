@@ -148,7 +148,7 @@ def parse_args(argv=None) -> tuple[Config, bool]:
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.train",
                                 description="Train MinSubDT (or DT, BC, a critic agent) on a dataset and evaluate it in "
                                             "batched physics: C MuJoCo on a CPU, MJX on an accelerator.")
-    add_flags(p, Config, CHOICES, PRESETS, Config.preset)
+    add_flags(p, Config, CHOICES, PRESETS, Config.preset, aliases={"learning_rate": ("--lr",)})
     p.add_argument("--config", help="a config file (a run's config.json, or YAML) to start from; its fields "
                    "override the preset's and the flags given override its")
     p.add_argument("--returns", choices=tuple(RETURNS_ALIASES),
