@@ -29,22 +29,19 @@ import dataclasses
 import glob
 import json
 import os
-import re
 import sys
 import time
 import traceback
 
 import numpy as np
 
-from minsubdt_jax.methods import METHODS as ALL_METHODS
-
 # its siblings, beside it: a script's folder is on its path (the tests': pyproject's pythonpath)
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,
-                           data_files, markdown, plot_costs, versus_dt)
+                           data_files, markdown, versus_dt)
 import table1_compare
-from table1_units import (check_critic_settings, check_not_stale, commit_results, compact,  # noqa: F401
-                          curves_from_results, model_curve, per_seed_results, plan_units, programs_of, run_name,
-                          seed_runs)
+from table1_figures import model_curve, plot_cell_curves, plot_costs
+from table1_units import (check_critic_settings, check_not_stale, commit_results, compact, per_seed_results,
+                          plan_units, run_name)
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -130,48 +127,6 @@ def load_results(preset="cpu", results_root=RESULTS) -> list[dict]:
         c = r["config"]
         rows.append({"env": c["env"], "dataset": c["dataset"], "method": c["method"], "seed": c["seed"], "r": r})
     return rows
-
-
-def _methods_of(run_dir: str, prefix: str) -> list[str]:
-    """The methods of a sweep's run directory ``<prefix><m1+m2...>-s<a>[-<b>]`` (none if it is not one: e.g.
-    ``walker-medium-replay-...`` under the prefix ``walker-medium-``)."""
-    m = re.fullmatch(re.escape(prefix) + r"(.+)-s\d+(-\d+)?", os.path.basename(run_dir))
-    names = m.group(1).split("+") if m else []
-    return names if names and all(n in ALL_METHODS for n in names) else []
-
-
-def plot_cell_curves(preset: str, runs_root: str, out_root: str, landed, rows=()) -> dict:
-    """Per landed cell (``landed``: "dataset/env" keys with results): its score and loss curves in one figure,
-    ``out_root/table1_curves/<preset>-<env>-<dataset>.png``, drawn from the ``curve`` its result files keep
-    (``rows``, :func:`load_results`: every seed and method of the cell, whichever machine trained it, so any clone
-    draws the same figure), else from its training runs on this machine (``runs_root/<preset>/<env>-<dataset>-*``,
-    their ``metrics.jsonl``: :func:`minsubdt_jax.plot.plot_runs`), else the figure already in ``out_root`` is kept.
-    A cell still training gets no figure (the report would link one that is not committed).
-    ``{"dataset/env": png path relative to out_root}``."""
-    from minsubdt_jax.plot import plot_curves, plot_runs
-
-    pngs = {}
-    for env in ENVS:
-        for ds in DATASETS:
-            if f"{ds}/{env}" not in landed:
-                continue
-            rel = os.path.join("table1_curves", f"{preset}-{env}-{ds}.png")
-            png = os.path.join(out_root, rel)
-            kept = [r for r in rows if r["env"] == env and r["dataset"] == ds and r["r"].get("curve")]
-            dirs = [] if kept else sorted(  # this machine's runs, only where no result file keeps a curve
-                d for d in glob.glob(os.path.join(runs_root, preset, f"{env}-{ds}-*"))
-                if os.path.exists(os.path.join(d, "metrics.jsonl")) and _methods_of(d, f"{env}-{ds}-"))
-            if dirs or kept:
-                os.makedirs(os.path.join(out_root, "table1_curves"), exist_ok=True)
-            if kept:
-                programs = programs_of(kept)
-                plot_curves([curves_from_results(g) for g in programs.values()], png,
-                            [f"{env}-{ds} {label} (result files)" for label in programs])
-            elif dirs:
-                plot_runs(dirs, png, labels=[os.path.basename(d).removeprefix(f"{env}-{ds}-") for d in dirs])
-            if os.path.exists(png):
-                pngs[f"{ds}/{env}"] = rel
-    return pngs
 
 
 def summarise(preset: str, results_root=RESULTS) -> tuple[dict, list]:

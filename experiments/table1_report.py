@@ -266,38 +266,3 @@ def markdown(out: dict) -> str:
         lines.append(f"| {d} | {e} | " + " | ".join(f"{x:.1f}" for x in [v[m] for m in METHODS]
                                                      + list(PUBLISHED_BASELINES[d, e].values())) + " |")
     return "\n".join(lines) + "\n"
-
-
-def plot_costs(rows, env, png):
-    """Per dataset: the demos' engineered cost features (a sample) against every method's rollouts."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = [r for r in rows if r["env"] == env and r["r"].get("eval")]
-    if not rows:
-        return
-    fig, axes = plt.subplots(1, len(DATASETS), figsize=(4.2 * len(DATASETS), 3.6), dpi=100, squeeze=False)
-    for ax, d in zip(axes[0], DATASETS):
-        rs = [r for r in rows if r["dataset"] == d]
-        if not rs:
-            ax.set_title(f"{env} {d}: no runs yet")
-            continue
-        demo = np.asarray(rs[0]["r"]["dataset"]["costs_sample"])
-        groups = [("demos", demo)] + [(METHOD_NAMES[m], np.concatenate([np.asarray(r["r"]["eval"]["costs"])
-                                                                       for r in rs if r["method"] == m]))
-                                      for m in COLUMNS if any(r["method"] == m for r in rs)]
-        for gi, (label, pts) in enumerate(groups):
-            if pts.shape[1] >= 2:
-                ax.scatter(pts[:, 0], pts[:, 1], s=8 if gi == 0 else 18, alpha=0.35 if gi == 0 else 0.8, label=label)
-            else:
-                ax.scatter(pts[:, 0], gi + 0.15 * np.random.default_rng(gi).normal(size=len(pts)), s=10, label=label)
-        names = list(rs[0]["r"]["dataset"]["costs_mean"])
-        ax.set(title=f"{env} {d}", xlabel=f"{names[0]} cost")
-        ax.set_ylabel(f"{names[1]} cost" if len(names) > 1 else "group")
-        ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(png)
-    plt.close(fig)

@@ -8,8 +8,6 @@ import json
 import os
 import subprocess
 
-import numpy as np
-
 from minsubdt_jax.agents import AGENTS, missing_presets, result_fields
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
@@ -107,70 +105,6 @@ def commit_results(paths: list[str], message: str) -> None:
     rel = [os.path.relpath(os.path.abspath(p), cwd) for p in paths]
     subprocess.run(["git", "add", "--", *rel], cwd=cwd, check=True, capture_output=True)
     subprocess.run(["git", "commit", "-q", "-m", message, "--", *rel], cwd=cwd, check=True, capture_output=True)
-
-
-def model_curve(run_dir: str, model: dict) -> dict | None:
-    """One model's training curve from its program's ``metrics.jsonl`` (``model``: its ``method``, ``seed`` and,
-    over several datasets, ``dataset``, as in results.json's ``models``): the evaluations' steps, normalised score
-    and min-subdominance (means over their episodes; ``final`` marks the last), and its training loss per logged
-    step. Kept in the model's result file, so a landed cell's curves outlive the machine that trained it; ``None``
-    where the run directory has no evaluation."""
-    from minsubdt_jax.rundir import read_metrics
-
-    rows = read_metrics(os.path.join(run_dir, "metrics.jsonl"))
-    evals = [r for r in rows if "eval_normalized_score" in r]
-    if not evals:
-        return None
-    r0 = evals[0]
-    k = next((i for i, (m, s) in enumerate(zip(r0["eval_method"], r0["eval_seed"]))
-              if m == model["method"] and s == model["seed"]
-              and ("eval_dataset" not in r0 or r0["eval_dataset"][i] == model.get("dataset"))), None)
-    if k is None:
-        raise ValueError(f"{run_dir}: metrics.jsonl evaluates no model {model} (another program's run directory?)")
-    losses = [r for r in rows if "loss_per_seed" in r]
-    return {"step": [r["step"] for r in evals], "final": [bool(r.get("final", False)) for r in evals],
-            "normalized_score": [r["eval_normalized_score"][k] for r in evals],
-            "min_subdominance": [r["eval_min_subdominance"][k] for r in evals],
-            "loss_step": [r["step"] for r in losses], "loss": [r["loss_per_seed"][k] for r in losses]}
-
-
-def curves_from_results(rows: list[dict]) -> dict:
-    """:func:`minsubdt_jax.plot.curves`' dict from the ``curve`` of committed result files (``rows``: one cell's,
-    from ``table1.load_results``): per method, the mean and std over its seeds at each evaluation step."""
-    have = [r for r in rows if r["r"].get("curve")]
-    if len({_schedule(r) for r in have}) > 1:
-        raise ValueError("curves_from_results: these result files come from programs with different evaluation or "
-                         "loss steps; split them with programs_of first")
-    out = {"score": {}, "min_subdominance": {}}
-    steps, loss = have[0]["r"]["curve"]["loss_step"], np.array([r["r"]["curve"]["loss"] for r in have], float)
-    out["loss"] = (np.array(steps), loss.mean(0), loss.std(0))
-    for method in dict.fromkeys(r["method"] for r in have):
-        cs = [r["r"]["curve"] for r in have if r["method"] == method]
-        for key, name in (("normalized_score", "score"), ("min_subdominance", "min_subdominance")):
-            v = np.array([c[key] for c in cs], float)
-            out[name][method] = (np.array(cs[0]["step"]), v.mean(0), v.std(0), np.array(cs[0]["final"]))
-    return out
-
-
-def _schedule(row: dict) -> tuple:
-    c = row["r"]["curve"]
-    return tuple(c["step"]), tuple(c["loss_step"])
-
-
-def programs_of(rows: list[dict]) -> dict[str, list[dict]]:
-    """One cell's result rows with a ``curve``, grouped by their evaluation and loss steps (the DT family's 10k
-    steps and each critic agent's own schedule cannot share one mean), each group labelled by its methods:
-    ``{"iql": [...], "td3bc": [...]}``, the input for one :func:`curves_from_results` each. Two programs of the
-    same methods on other schedules keep apart, the second labelled with its evaluation steps too."""
-    groups: dict[tuple, list[dict]] = {}
-    for r in rows:
-        if r["r"].get("curve"):
-            groups.setdefault(_schedule(r), []).append(r)
-    out: dict[str, list[dict]] = {}
-    for (steps, _), g in groups.items():
-        label = "+".join(dict.fromkeys(r["method"] for r in g))
-        out[label if label not in out else f"{label} (evaluated at {list(steps)})"] = g
-    return out
 
 
 def stale_fields(saved: dict, expected) -> dict:

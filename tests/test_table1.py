@@ -94,8 +94,10 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model
 
 
-def test_commit_results_commits_only_the_unit_files(table1, tmp_path):
+def test_commit_results_commits_only_the_unit_files(tmp_path):
     import subprocess
+
+    import table1_units
 
     git = lambda *a: subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True, text=True).stdout  # noqa
     git("init", "-q")
@@ -105,16 +107,18 @@ def test_commit_results_commits_only_the_unit_files(table1, tmp_path):
     (tmp_path / "other.txt").write_text("work in progress")
     git("config", "user.name", "t")
     git("config", "user.email", "t@t")
-    table1.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
+    table1_units.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
     assert git("log", "-1", "--format=%s").strip() == "Table 1 (smoke): x; resume: python ..."
     assert git("show", "--name-only", "--format=").split() == ["res/a.json"]
     assert "other.txt" in git("status", "--porcelain")  # left as it was
 
 
-def test_seed_runs_groups_consecutive_seeds(table1):
-    assert table1.seed_runs([2, 0, 1]) == [(0, 3)]
-    assert table1.seed_runs({0, 2, 3, 5}) == [(0, 1), (2, 2), (5, 1)]
-    assert table1.seed_runs([]) == []
+def test_seed_runs_groups_consecutive_seeds():
+    import table1_units
+
+    assert table1_units.seed_runs([2, 0, 1]) == [(0, 3)]
+    assert table1_units.seed_runs({0, 2, 3, 5}) == [(0, 1), (2, 2), (5, 1)]
+    assert table1_units.seed_runs([]) == []
 
 
 def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
@@ -264,6 +268,7 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path, monkeypatch):
     that cell's: walker-medium-replay runs are not walker medium's) with minsubdt_jax.plot; a cell still training
     gets no figure, a landed cell trained on another machine keeps its committed one, and the report links them."""
     import minsubdt_jax.plot as plot
+    import table1_figures
 
     drawn, plot_runs = [], plot.plot_runs
     monkeypatch.setattr(plot, "plot_runs", lambda dirs, *a, **k: (drawn.extend(dirs), plot_runs(dirs, *a, **k)))
@@ -288,30 +293,30 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path, monkeypatch):
             {"step": 10, "final": True, "eval_method": ["dt", "bc"], "eval_seed": [0, 1],
              "eval_normalized_score": [30.0, 40.0], "eval_min_subdominance": [0.5, 1.5]}]
     (prog / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
-    bc = table1.model_curve(str(prog), {"method": "bc", "seed": 1})
+    bc = table1_figures.model_curve(str(prog), {"method": "bc", "seed": 1})
     assert bc == {"step": [5, 10], "final": [False, True], "normalized_score": [20.0, 40.0],
                   "min_subdominance": [2.0, 1.5], "loss_step": [5, 10], "loss": [1.0, 0.5]}
-    assert table1.model_curve(str(tmp_path), {"method": "bc", "seed": 1}) is None  # no evaluations there
+    assert table1_figures.model_curve(str(tmp_path), {"method": "bc", "seed": 1}) is None  # no evaluations there
     with pytest.raises(ValueError, match="evaluates no model"):
-        table1.model_curve(str(prog), {"method": "bc", "seed": 0})
+        table1_figures.model_curve(str(prog), {"method": "bc", "seed": 0})
     rows = [{"env": "walker", "dataset": "medium-expert", "method": m, "seed": s,
              "r": {"curve": dict(bc, normalized_score=[v, v + 10.0])}} for m, s, v in (("dt", 0, 0.0), ("dt", 1, 4.0))]
-    c = table1.curves_from_results(rows)
+    c = table1_figures.curves_from_results(rows)
     np.testing.assert_allclose(c["score"]["dt"][1], [2.0, 12.0])
     np.testing.assert_allclose(c["score"]["dt"][2], [2.0, 2.0])
     # a critic agent's program in the same cell evaluates and logs its loss at other steps: its own group
     iql = dict(bc, step=[50, 100], final=[False, True], loss_step=[50, 100])
     rows.append({"env": "walker", "dataset": "medium-expert", "method": "iql", "seed": 0, "r": {"curve": iql}})
-    assert {k: [(r["method"], r["seed"]) for r in g] for k, g in table1.programs_of(rows).items()} == {
+    assert {k: [(r["method"], r["seed"]) for r in g] for k, g in table1_figures.programs_of(rows).items()} == {
         "dt": [("dt", 0), ("dt", 1)], "iql": [("iql", 0)]}
     other = [{"env": "walker", "dataset": "medium-expert", "method": "iql", "seed": 1,
               "r": {"curve": dict(iql, step=[60, 120], loss_step=[60, 120])}}]  # the same method, another schedule
-    assert {k: [r["seed"] for r in g] for k, g in table1.programs_of(rows + other).items()} == {
+    assert {k: [r["seed"] for r in g] for k, g in table1_figures.programs_of(rows + other).items()} == {
         "dt": [0, 1], "iql": [0], "iql (evaluated at [60, 120])": [1]}
     with pytest.raises(ValueError, match="programs_of"):
-        table1.curves_from_results(rows)
+        table1_figures.curves_from_results(rows)
     landed = {"medium/walker", "medium/hopper", "medium-expert/hopper", "medium-expert/walker"}
-    pngs = table1.plot_cell_curves("smoke", str(tmp_path / "runs"), str(agg), landed, rows)
+    pngs = table1_figures.plot_cell_curves("smoke", str(tmp_path / "runs"), str(agg), landed, rows)
     assert pngs == {"medium/walker": "table1_curves/smoke-walker-medium.png",
                     "medium/hopper": "table1_curves/smoke-hopper-medium.png",
                     "medium-expert/walker": "table1_curves/smoke-walker-medium-expert.png"}  # from its result files
