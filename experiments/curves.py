@@ -12,7 +12,8 @@ cpu preset's 64 x 2 DT, lr 3e-4, warm-up 500; ``paper``: the DT paper's 128 x 3,
 program (``python -m minsubdt_jax.train --method a,b --seeds S``), evaluating every model on ``--episodes``
 episodes every ``--eval-every`` steps. It resumes from the run directory's last checkpoint when started again
 (``runs/curves/<name>``), and writes ``experiments/results/curves/<name>.{json,png}`` when done: per evaluation
-step and model, the mean and the standard deviation over episodes of the normalised score.
+step and model, the mean and the standard deviation over episodes of the normalised score. A curve whose file is
+there (and not a ``snapshot``'s partial one) is not run again, on any machine.
 
 The noise report separates the two sources of spread of a method's score at one step: the standard error of one
 seed's mean over its episodes (std / sqrt(episodes)), and the spread between seeds (the std of the seed means),
@@ -56,6 +57,13 @@ def run(a) -> dict:
     from minsubdt_jax.config import PRESETS, validate
     from minsubdt_jax.train import train
 
+    done = os.path.join(RESULTS, name_of(a) + ".json")
+    if os.path.exists(done):
+        with open(done) as f:
+            curve = json.load(f)
+        if not curve.get("partial"):  # its run directory may be on another machine: nothing to train again
+            print(f"{done}: complete; nothing to do", flush=True)
+            return curve
     out = os.path.join(a.runs_root, name_of(a))
     given = {"warmup_steps": a.warmup, "brac_alpha": a.brac_alpha, "pretrain_steps": a.pretrain_steps,
              "learning_rate": a.lr}  # flags left unset keep the model's preset

@@ -11,7 +11,8 @@ each metric alone and on both (each scored on both: ``--eval-costs``). Then it r
 ``--grid`` x ``--grid`` grid of targets (``minsubdt-vec``: eq. 2's per-metric term from 0 to beta; ``dt-vec``: each
 metric's cost from the demos' best to their worst), ``--episodes`` episodes per seed and target
 (:func:`minsubdt_jax.evaluate.evaluate_run`). Runs live in ``runs/front/<cell>/`` and resume; each target's
-per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (commit it).
+per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (commit it). A cell whose file
+holds all of it is not run again, on any machine.
 
 ``report``: per cell, the hypervolume (moocore; reference point 1 in both costs, lower is better) of the non-dominated
 points of the demos, of the scalar runs' means, and of each vector method's target sweep (the means over seeds per
@@ -82,17 +83,30 @@ def means(per_seed: list[dict]) -> dict:
             "costs": [[e["costs_mean"][m] for m in PAIR] for e in per_seed]}
 
 
+def complete(out: dict, a) -> bool:
+    """Whether a cell's results file ``out`` holds all the work of ``a``: the same preset, seeds and episodes, every
+    target of the grid for both vector methods, and every scalar run."""
+    if not out.get("demo_costs") or any(out.get(k) != getattr(a, k) for k in ("preset", "seeds", "episodes")):
+        return False
+    demo, sweeps = np.asarray(out["demo_costs"]), out.get("sweeps", {})
+    return all(any(r["target"] == t for r in sweeps.get(m, [])) for m in VECTOR
+               for t in grid_targets(m, demo, out["beta"], a.grid)) and set(RUNS) - {"vec"} <= set(out.get("scalar", {}))
+
+
 def run(a) -> None:
     from minsubdt_jax.atomic import write_atomic
     from minsubdt_jax.evaluate import evaluate_run, load_run
 
-    dirs = train_runs(a, ["vec"])  # the vector methods and their sweeps first, the scalar runs after
     path = os.path.join(RESULTS, cell_name(a) + ".json")
-    os.makedirs(RESULTS, exist_ok=True)
     out = {}
     if os.path.exists(path):
         with open(path) as f:
             out = json.load(f)
+    if complete(out, a):  # its run directories may be on another machine: nothing to train again
+        print(f"{path}: complete (every target and scalar run); nothing to do", flush=True)
+        return
+    dirs = train_runs(a, ["vec"])  # the vector methods and their sweeps first, the scalar runs after
+    os.makedirs(RESULTS, exist_ok=True)
     loaded = load_run(dirs["vec"])
     demo = loaded.per_model[0].costs
     out.update({"cell": cell_name(a), "env": a.env, "dataset": a.dataset, "preset": a.preset, "seeds": a.seeds,

@@ -96,3 +96,30 @@ def test_a_tagged_curve_keeps_its_own_file(tmp_path, capsys):
     curve = mod.collect(str(tmp_path), res)
     assert (curve["platform"], curve["train_seconds"], curve["steps"]) == (gpu, 3.8, [20])
     assert curve["models"] == [{"method": "dt", "seed": 0, "mean": [40.0], "std": [3.0]}]
+
+
+def test_run_skips_a_finished_curve_and_resumes_a_partial_one(tmp_path, monkeypatch, capsys):
+    """A curve whose results file is complete is not trained again (on a fresh machine its run directory is gone);
+    a partial one (``snapshot``) is."""
+    import curves
+    import minsubdt_jax.train
+
+    class Reached(Exception):
+        pass
+
+    def train(*a, **k):
+        raise Reached
+
+    monkeypatch.setattr(curves, "RESULTS", str(tmp_path))
+    monkeypatch.setattr(minsubdt_jax.train, "train", train)
+    flags = ["--env", "hopper", "--dataset", "medium-replay", "--model", "cpu", "--steps", "10000", "--tag", "t"]
+    path = tmp_path / (curves.name_of(curves.build_parser().parse_args(["run", *flags])) + ".json")
+    path.write_text(json.dumps({"models": [], "steps": [1000]}))
+    curves.main(["run", *flags])
+    assert "complete" in capsys.readouterr().out
+    path.write_text(json.dumps({"models": [], "steps": [1000], "partial": True}))
+    try:
+        curves.main(["run", *flags])
+        raise AssertionError("a partial curve was not resumed")
+    except Reached:
+        pass

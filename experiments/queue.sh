@@ -1,0 +1,71 @@
+#!/bin/bash
+# The open CPU work of issues 54 and 55, in lanes that resume from their checkpoints (runs/, this machine's) and
+# commit each small result as it lands (only the result files; the rest of the work tree is left as it is):
+#
+#   bash experiments/queue.sh table    # issue 54: Table 1's DT-family sweep at study, seed 0, then 1, then 2
+#   bash experiments/queue.sh curves   # issue 54: the curves that chose study, with the fixed DT (revision 2)
+#   bash experiments/queue.sh front    # issue 55: the fronts' remaining cells
+#
+# In the background, one lane per log (each lane waits while another process runs its own script):
+#   mkdir -p runs/logs && for l in table curves front; do
+#     nohup setsid bash experiments/queue.sh $l > runs/logs/queue-$l.log 2>&1 & done
+# A lane done is a no-op when started again, on any machine: finished units, curves and cells are skipped by their
+# committed result files.
+set -u
+cd "$(dirname "$0")/.."
+mkdir -p runs/logs
+
+commit() {  # commit the named result paths if they changed: commit MESSAGE PATH...
+    local msg=$1; shift
+    git add -- "$@" 2>/dev/null
+    git diff --cached --quiet -- "$@" || git commit -q -m "$msg" -- "$@"
+}
+
+wait_for() {  # while another process runs this pattern, wait (the run directories' locks would refuse a second)
+    while pgrep -f "$1" > /dev/null; do sleep 60; done
+}
+
+log() { echo "[$(date -u +%FT%TZ)] $*"; }
+
+table() {
+    wait_for "experiments/table1.py run"
+    for s in 0 1 2; do
+        log "table1 --seeds $s"
+        python experiments/table1.py run --preset study --commit --seeds "$s" || { log "table1 s$s rc=$?"; return 1; }
+    done
+    python experiments/table1.py aggregate --preset study > /dev/null
+    commit "Table 1 (study): aggregate of the landed cells; resume: bash experiments/queue.sh table" \
+        experiments/results/table1.md experiments/results/table1.json experiments/results/table1_costs_*.png \
+        experiments/results/table1_curves
+}
+
+curves() {
+    wait_for "experiments/curves.py run"
+    local c="--model cpu --methods minsubdt,dt --steps 10000 --eval-every 1000 --episodes 30 --seeds 3"
+    c="$c --lr-schedule cosine --ema 0.999 --lr 1e-3 --tag rev2"
+    for cell in "walker medium" "hopper medium-replay" "halfcheetah medium-expert"; do
+        set -- $cell
+        log "curve $1 $2"
+        python experiments/curves.py run --env "$1" --dataset "$2" $c || { log "curve $1 $2 rc=$?"; return 1; }
+        python experiments/curves.py report > /dev/null
+        commit "Curves (issue 54, fixed DT): $1 $2; resume: bash experiments/queue.sh curves" \
+            experiments/results/curves experiments/results/curves.md
+    done
+}
+
+front() {
+    wait_for "experiments/front.py run"
+    for cell in "walker medium-replay" "halfcheetah medium-replay" "walker medium"; do
+        set -- $cell
+        log "front $1 $2"
+        nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" || { log "front $1 $2 rc=$?"; return 1; }
+        python experiments/front.py report > /dev/null
+        commit "Front (issue 55): $1 $2; resume: bash experiments/queue.sh front" \
+            experiments/results/front experiments/results/front.md experiments/results/front.png
+    done
+}
+
+case "${1:-}" in
+    table | curves | front) "$1" ;;
+    *) echo "usage: bash experiments/queue.sh table|curves|front" >&2; exit 2 ;;
+esac

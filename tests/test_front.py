@@ -1,0 +1,60 @@
+"""experiments/front.py's bookkeeping: a cell whose results file is complete is not trained again (on a fresh
+machine its run directories are gone, and ``run`` would retrain ~3 h of models to recompute what is committed)."""
+
+import json
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture()
+def front(tmp_path, monkeypatch):
+    import front  # experiments/ (pyproject's pythonpath)
+
+    monkeypatch.setattr(front, "RESULTS", str(tmp_path))
+    return front
+
+
+def cell_file(front, tmp_path, drop_target=False, drop_scalar=False):
+    """A results file of walker medium-replay with every target of a 2 x 2 grid and every scalar run."""
+    demo = np.array([[0.2, 0.9], [0.8, 0.1], [0.5, 0.5]])
+    sweeps = {m: [{"target": t, "normalized": [1.0], "costs": [[0.5, 0.5]]}
+                  for t in front.grid_targets(m, demo, 1.0, 2)] for m in front.VECTOR}
+    if drop_target:
+        sweeps["dt-vec"].pop()
+    scalar = {n: {"normalized": [1.0], "costs": [[0.5, 0.5]]} for n in front.RUNS if n != "vec"}
+    if drop_scalar:
+        scalar.popitem()
+    out = {"cell": "walker-medium-replay", "preset": "study", "seeds": 3, "episodes": 100, "beta": 1.0,
+           "demo_costs": demo.tolist(), "sweeps": sweeps, "scalar": scalar}
+    (tmp_path / "walker-medium-replay.json").write_text(json.dumps(out))
+
+
+ARGS = ["run", "--env", "walker", "--dataset", "medium-replay", "--grid", "2"]
+
+
+class Reached(Exception):
+    """train_runs was called: the cell would train."""
+
+
+def reach(*a, **k):
+    raise Reached
+
+
+def test_a_complete_cell_is_not_trained_again(front, tmp_path, monkeypatch, capsys):
+    cell_file(front, tmp_path)
+    monkeypatch.setattr(front, "train_runs", reach)
+    front.main(ARGS)
+    assert "complete" in capsys.readouterr().out
+    with pytest.raises(Reached):  # another grid, or more seeds, is other work
+        front.main(ARGS[:-1] + ["3"])
+    with pytest.raises(Reached):
+        front.main(ARGS + ["--seeds", "5"])
+
+
+@pytest.mark.parametrize("gap", ["drop_target", "drop_scalar"])
+def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
+    cell_file(front, tmp_path, **{gap: True})
+    monkeypatch.setattr(front, "train_runs", reach)
+    with pytest.raises(Reached):
+        front.main(ARGS)
