@@ -148,17 +148,11 @@ def train_learned_costs(observations, lengths, returns, cfg: LearnedCostConfig, 
       preferred trajectory has the lower subdominance against the other, ``c_bw < c_wb``) and the final loss.
     """
     observations = np.asarray(observations, np.float32)
-    lengths = np.asarray(lengths)
-    terminated = np.asarray(terminated, bool)
-    returns = np.asarray(returns)
-    N = len(returns)
-    if cfg.cost_dim < 1 or cfg.steps < 1 or cfg.pairs_per_step < 1 or not 0 <= cfg.label_noise < 0.5:
-        raise ValueError("learned costs need cost_dim >= 1, steps >= 1, pairs_per_step >= 1, 0 <= label_noise < 0.5")
-    if not 0 < cfg.holdout < 1 or N < 4:
-        raise ValueError(f"need 0 < holdout < 1 and at least 4 trajectories, got holdout {cfg.holdout}, N {N}")
-    rng = np.random.default_rng(cfg.seed)
-    perm = rng.permutation(N)
-    n_test = max(2, int(round(cfg.holdout * N)))
+    lengths, terminated, returns = np.asarray(lengths), np.asarray(terminated, bool), np.asarray(returns)
+    _check(cfg, len(returns))
+    rng = np.random.default_rng(cfg.seed)  # the split first, then every chunk's pairs
+    perm = rng.permutation(len(returns))
+    n_test = max(2, int(round(cfg.holdout * len(returns))))
     test, train = perm[:n_test], perm[n_test:]
     if state_mean is None:
         valid = np.arange(observations.shape[1])[None, :] < lengths[:, None]
@@ -167,55 +161,76 @@ def train_learned_costs(observations, lengths, returns, cfg: LearnedCostConfig, 
     params = CostParams(net=net.init(jax.random.PRNGKey(cfg.seed), observations[:1, :1]),
                         log_alpha=jnp.full((cfg.cost_dim,), np.log(cfg.init_alpha), jnp.float32),
                         state_mean=jnp.asarray(state_mean, jnp.float32), state_std=jnp.asarray(state_std, jnp.float32))
-    tx = optax.adam(cfg.learning_rate)
-    trainable = lambda p: (p.net, p.log_alpha)  # noqa: E731
-    opt_state = tx.init(trainable(params))
-    obs_j, len_j, term_j = jnp.asarray(observations), jnp.asarray(lengths), jnp.asarray(terminated, bool)
-    beta = jnp.asarray(beta, jnp.float32)
+    tx, beta = optax.adam(cfg.learning_rate), jnp.asarray(beta, jnp.float32)
+    chunk = _make_chunk(net, tx, jnp.asarray(observations), jnp.asarray(lengths), jnp.asarray(terminated, bool),
+                        beta, horizon)
+    params, losses = _fit(chunk, params, tx, cfg, returns, train, rng, verbose)
+    model = LearnedCosts(net, params, horizon, {})
+    feats = model.features(observations, lengths, terminated)
+    alpha, beta = np.exp(np.asarray(params.log_alpha)), float(beta)
+    model.report = {
+        "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+        "alpha": alpha.tolist(), "beta": beta,
+        "final_loss": float(np.mean(losses[-1][-50:])),
+        "train_pair_accuracy": pair_accuracy(feats, returns, train, alpha, beta),
+        "heldout_pair_accuracy": pair_accuracy(feats, returns, test, alpha, beta),
+        "train_trajectories": int(len(train)), "heldout_trajectories": int(len(test)),
+        "spearman_mean_feature_vs_return": spearman(-feats.mean(1), returns),
+    }
+    return model
+
+
+def _check(cfg: LearnedCostConfig, n: int) -> None:
+    if cfg.cost_dim < 1 or cfg.steps < 1 or cfg.pairs_per_step < 1 or not 0 <= cfg.label_noise < 0.5:
+        raise ValueError("learned costs need cost_dim >= 1, steps >= 1, pairs_per_step >= 1, 0 <= label_noise < 0.5")
+    if not 0 < cfg.holdout < 1 or n < 4:
+        raise ValueError(f"need 0 < holdout < 1 and at least 4 trajectories, got holdout {cfg.holdout}, N {n}")
+
+
+def _trainable(p: CostParams):
+    return p.net, p.log_alpha
+
+
+def _make_chunk(net, tx, obs, lengths, terminated, beta, horizon: int):
+    """A jitted ``lax.scan`` of Adam steps on eq. 3: ``(params, opt_state, W [n, P], B [n, P])`` -> ``(params,
+    opt_state, losses [n])``, ``W``/``B`` the worse/better trajectory of each step's ``P`` pairs."""
 
     def loss_fn(tp, p, w, b):
         p = p.replace(net=tp[0], log_alpha=tp[1])
         idx = jnp.concatenate([w, b])
-        f = trajectory_features(net, p, obs_j[idx], len_j[idx], term_j[idx], horizon)
+        f = trajectory_features(net, p, obs[idx], lengths[idx], terminated[idx], horizon)
         return preference_loss(f[: w.shape[0]], f[w.shape[0]:], jnp.exp(p.log_alpha), beta)
 
     @jax.jit
-    def chunk(params, opt_state, W, B):  # W, B: [steps_in_chunk, pairs]
+    def chunk(params, opt_state, W, B):
         def step(carry, wb):
             params, opt_state = carry
-            loss, g = jax.value_and_grad(loss_fn)(trainable(params), params, *wb)
+            loss, g = jax.value_and_grad(loss_fn)(_trainable(params), params, *wb)
             upd, opt_state = tx.update(g, opt_state)
-            net_p, log_alpha = optax.apply_updates(trainable(params), upd)
+            net_p, log_alpha = optax.apply_updates(_trainable(params), upd)
             return (params.replace(net=net_p, log_alpha=log_alpha), opt_state), loss
 
         (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), (W, B))
         return params, opt_state, losses
 
-    chunk_len = min(cfg.steps, 250)
+    return chunk
+
+
+def _fit(chunk, params, tx, cfg: LearnedCostConfig, returns, train, rng, verbose: bool):
+    """``cfg.steps`` steps in chunks of up to 250, each chunk's pairs drawn from ``train`` by ``rng``;
+    ``(params, [losses per chunk])``."""
+    opt_state = tx.init(_trainable(params))
     done, losses = 0, []
     while done < cfg.steps:
-        n = min(chunk_len, cfg.steps - done)
+        n = min(cfg.steps, 250, cfg.steps - done)
         w, b = preference_pairs(returns[train], rng, n * cfg.pairs_per_step, cfg.label_noise)
-        W = train[w].reshape(n, cfg.pairs_per_step)
-        B = train[b].reshape(n, cfg.pairs_per_step)
+        W, B = train[w].reshape(n, cfg.pairs_per_step), train[b].reshape(n, cfg.pairs_per_step)
         params, opt_state, ls = chunk(params, opt_state, jnp.asarray(W), jnp.asarray(B))
         losses.append(np.asarray(ls))
         done += n
         if verbose:
             print(f"learned costs: step {done}/{cfg.steps}, eq. 3 loss {float(np.mean(ls)):.4f}", flush=True)
-    model = LearnedCosts(net, params, horizon, {})
-    feats = model.features(observations, lengths, terminated)
-    alpha = np.exp(np.asarray(params.log_alpha))
-    model.report = {
-        "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
-        "alpha": alpha.tolist(), "beta": float(beta),
-        "final_loss": float(np.mean(losses[-1][-50:])),
-        "train_pair_accuracy": pair_accuracy(feats, returns, train, alpha, float(beta)),
-        "heldout_pair_accuracy": pair_accuracy(feats, returns, test, alpha, float(beta)),
-        "train_trajectories": int(len(train)), "heldout_trajectories": int(len(test)),
-        "spearman_mean_feature_vs_return": spearman(-feats.mean(1), returns),
-    }
-    return model
+    return params, losses
 
 
 def pair_accuracy(features, returns, idx, alpha, beta) -> float:
