@@ -164,30 +164,45 @@ def _used_by(method: str, entry: dict, entries: list[dict]) -> str:
 
 
 def markdown(out: dict) -> str:
+    """``experiments/results/table1.md`` from :func:`table1.summarise`'s ``out``: the table and its sections."""
     methods = columns(out["table"])
-    cols = [METHOD_NAMES[m] for m in methods]
+
+    def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"
+        return [f"| {d} | {e} | {fmt(d, e, out['table'].get(f'{d}/{e}', {}))} |" for d in DATASETS for e in ENVS]
+
+    lines = (_header(out, methods) + _scores(out, methods, cells) + _versus_lines(out["versus_dt"] if "versus_dt" in out
+             else versus_dt(out["table"])) + _better_than_demonstrated(methods, cells) + _cost_agreement(out, cells)
+             + _data(out) + _curves(out) + _published())
+    return "\n".join(lines) + "\n"
+
+
+def _header(out: dict, methods) -> list[str]:
     lines = [f"# Table 1 on our recorded datasets (preset `{out['preset']}`)", "",
              "Normalised score (100 = committed SAC expert, 0 = uniform random, both measured in the brax-dynamics "
              "envs), mean ± std over the "
              f"training seeds present (their count in brackets), {out.get('eval_episodes', '?')} evaluation "
              f"episodes per seed at the `{out['preset']}` preset. '–' = not run yet. Regenerate: "
-             f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", "",
-             *([] if out["preset"] != "study" else [
-                 f"The `study` preset: the `cpu` model at a peak rate of {PRESETS['study'].learning_rate:g} with a "
-                 f"cosine decay over {PRESETS['study'].steps // 1000}k steps and an average of the parameters, "
-                 "chosen from score curves on this CPU. [docs/convergence.md](../../docs/convergence.md) says "
-                 "which cells' curves have flattened at it (and which have not) and how it differs from the "
-                 "paper's configuration; the DT-family table at its earlier rate, 3e-4, is there too (results in "
-                 "`table1/study-lr3e-4/`). See *Data* below for the dataset files and cost features these runs "
-                 "used.", "", *_critic_settings(out["preset"], methods)]
-               if out["preset"] == "study" else [
-                 f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
-                 "(README, *What the presets are for*); the `study` and `paper` presets are. See *Data* below for "
-                 "the dataset files and cost features these runs used.", ""]),
-             "| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
+             f"`python experiments/table1.py --preset {out['preset']}` (runs what is missing, then aggregates).", ""]
+    if out["preset"] == "study":
+        return lines + [
+            f"The `study` preset: the `cpu` model at a peak rate of {PRESETS['study'].learning_rate:g} with a "
+            f"cosine decay over {PRESETS['study'].steps // 1000}k steps and an average of the parameters, "
+            "chosen from score curves on this CPU. [docs/convergence.md](../../docs/convergence.md) says "
+            "which cells' curves have flattened at it (and which have not) and how it differs from the "
+            "paper's configuration; the DT-family table at its earlier rate, 3e-4, is there too (results in "
+            "`table1/study-lr3e-4/`). See *Data* below for the dataset files and cost features these runs "
+            "used.", "", *_critic_settings(out["preset"], methods)]
+    if out["preset"] == "paper":
+        return lines
+    return lines + [f"**Not a result**: the `{out['preset']}` preset is a stage of training, not a converged score "
+                    "(README, *What the presets are for*); the `study` and `paper` presets are. See *Data* below "
+                    "for the dataset files and cost features these runs used.", ""]
 
-    def cells(fmt):  # one markdown row per dataset x env: "| d | e | " + fmt(d, e, table row) + " |"
-        return [f"| {d} | {e} | {fmt(d, e, out['table'].get(f'{d}/{e}', {}))} |" for d in DATASETS for e in ENVS]
+
+def _scores(out: dict, methods, cells) -> list[str]:
+    """The table of scores, its averages, and the critic agents still without a column."""
+    cols = [METHOD_NAMES[m] for m in methods]
+    lines = ["| dataset | env | dataset's own | " + " | ".join(cols) + " |", "|---|---|---|" + "---|" * len(cols)]
 
     def own(d, e):
         v, n = out["dataset_score"].get(f"{d}/{e}"), len(_recordings(out.get("data_files", {}).get(f"{d}/{e}", [])))
@@ -196,8 +211,8 @@ def markdown(out: dict) -> str:
     lines += cells(lambda d, e, row: own(d, e) + " | " + " | ".join(_cell(row.get(m)) for m in methods))
     for label, av in out["averages"].items():
         lines.append(f"| **average ({label})** | | | " + " | ".join(
-            "–" if av.get(m, {}).get("mean") is None else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)"
-            for m in methods) + " |")
+            "–" if av.get(m, {}).get("mean") is None
+            else f"{av[m]['mean']:.1f} ({av[m]['cells']}/{av[m]['of']} cells)" for m in methods) + " |")
     absent = [m for m in CRITIC_METHODS if not m.startswith("minsubdt-") and m not in methods]
     if absent:
         ready = [METHOD_NAMES[m] for m in absent if out["preset"] in AGENTS[ALL_METHODS[m].agent].presets]
@@ -206,25 +221,22 @@ def markdown(out: dict) -> str:
                   "One gets a column once its score curve flattens within ~10 CPU-minutes per model here (issue 25); "
                   "the others wait for a GPU. Their speeds and curves: [docs/critics.md](../../docs/critics.md)."
                   + (f" With a setting but no column yet: {', '.join(ready)}." if ready else "")]
-    lines += _versus_lines(out["versus_dt"] if "versus_dt" in out else versus_dt(out["table"]))
-    lines += ["", "## Better than demonstrated?", "",
-              "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
-              "(none above it, one below), "
-              "and the rollouts' min-subdominance (eq. 2, engineered features) against the demos (lower is "
-              "better); mean over seeds.", "",
-              "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)]
-    lines += cells(lambda d, e, row: " | ".join(
-        "–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / {row[m]['rollout_min_subdominance']:.2f}"
-        for m in methods))
-    lines += ["", "## Cost representations: do they rank the demos like the true return?", "",
-              "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
-              "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
-              "and the learned costs' held-out preference accuracy (pairs among the 20 % of trajectories "
-              "held out of training). Per feature, over all episodes and over those that never fell, for the "
-              "designs considered: [cost_features.md](cost_features.md).", "",
-              "| dataset | env | engineered: Spearman | learned: Spearman | learned: held-out pair accuracy |",
-              "|---|---|---|---|---|"]
+    return lines
 
+
+def _better_than_demonstrated(methods, cells) -> list[str]:
+    cols = [METHOD_NAMES[m] for m in methods]
+    return ["", "## Better than demonstrated?", "",
+            "Share of evaluation rollouts that dominate the dataset's mean demo in the engineered cost features "
+            "(none above it, one below), "
+            "and the rollouts' min-subdominance (eq. 2, engineered features) against the demos (lower is "
+            "better); mean over seeds.", "",
+            "| dataset | env | " + " | ".join(cols) + " |", "|---|---|" + "---|" * len(cols)] + cells(
+        lambda d, e, row: " | ".join("–" if m not in row else f"{row[m]['better_than_mean_demo_share']:.0%} / "
+                                     f"{row[m]['rollout_min_subdominance']:.2f}" for m in methods))
+
+
+def _cost_agreement(out: dict, cells) -> list[str]:
     def agreement(d, e, _):
         c = out["cost_rank_agreement"].get(f"{d}/{e}", {})
         eng, lr = c.get("engineered_spearman"), c.get("learned", [])
@@ -232,37 +244,55 @@ def markdown(out: dict) -> str:
         acc = f"{np.mean([x['heldout_pair_accuracy'] for x in lr]):.3f}" if lr else "–"
         return f"{'–' if eng is None else f'{eng:.3f}'} | {sp} | {acc}"
 
-    lines += cells(agreement)
-    lines += ["", "## Data", "",
-              "The dataset file(s) the runs of each cell used (the name holds the recording recipe; hash of the "
-              "episodes, where the run recorded it) and their engineered cost features. A cell whose file is not "
-              "today's `python -m minsubdt_jax.data` recording, or whose features are not today's "
-              "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
-              "| dataset | env | file (sha256): cost features; evaluation physics, dynamics; dataset's own score; "
-              "used by |", "|---|---|---|"]
+    return ["", "## Cost representations: do they rank the demos like the true return?", "",
+            "Spearman correlation of −min-subdominance (eq. 2, leave-one-out over the dataset) with the true "
+            "return, for the engineered features and for the learned ones (eq. 3; K' = 2, mean over seeds), "
+            "and the learned costs' held-out preference accuracy (pairs among the 20 % of trajectories "
+            "held out of training). Per feature, over all episodes and over those that never fell, for the "
+            "designs considered: [cost_features.md](cost_features.md).", "",
+            "| dataset | env | engineered: Spearman | learned: Spearman | learned: held-out pair accuracy |",
+            "|---|---|---|---|---|"] + cells(agreement)
+
+
+def _data(out: dict) -> list[str]:
+    lines = ["", "## Data", "",
+             "The dataset file(s) the runs of each cell used (the name holds the recording recipe; hash of the "
+             "episodes, where the run recorded it) and their engineered cost features. A cell whose file is not "
+             "today's `python -m minsubdt_jax.data` recording, or whose features are not today's "
+             "`minsubdt_jax.costs`, was run on an earlier recipe.", "",
+             "| dataset | env | file (sha256): cost features; evaluation physics, dynamics; dataset's own score; "
+             "used by |", "|---|---|---|"]
     for d, e in ((d, e) for d in DATASETS for e in ENVS):
         xs = out.get("data_files", {}).get(f"{d}/{e}", [])
         lines.append(f"| {d} | {e} | " + "; ".join(
             f"{x['file']} ({x['sha256']}): {x['cost_features']}; {x['physics']}, {x['dynamics']}; dataset's own "
             f"{x['dataset_score']:.1f}; used by " + ", ".join(_used_by(m, x, xs) for m in x["methods"]) for x in xs)
             + " |")
-    lines += ["", "## Curves", "",
-              "Score and loss against the gradient step of each cell's training runs (`python -m minsubdt_jax.plot`, "
-              "drawn by `aggregate` from the `curve` each result file keeps, all methods and seeds of the cell, or "
-              "else from the run directories on the machine that trained them), and the convergence curves of "
-              "[curves.md](curves.md).", ""]
+    return lines
+
+
+def _curves(out: dict) -> list[str]:
+    lines = ["", "## Curves", "",
+             "Score and loss against the gradient step of each cell's training runs (`python -m minsubdt_jax.plot`, "
+             "drawn by `aggregate` from the `curve` each result file keeps, all methods and seeds of the cell, or "
+             "else from the run directories on the machine that trained them), and the convergence curves of "
+             "[curves.md](curves.md).", ""]
     lines += [f"- {d} {e}: ![curves]({png})" for key, png in sorted(out.get("curves", {}).items())
               for d, e in [key.split("/")]] or ["- none on the machine that aggregated"]
     lost = [k.replace("/", " ") for k in sorted(out.get("table", {})) if k not in out.get("curves", {})]
     if lost and out.get("curves"):
         lines += [f"- no figure: {', '.join(lost)} (trained on a machine that is gone, before result files kept "
                   "their curve; the final 100-episode evaluations above are complete)"]
-    lines += ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
-              "Not comparable one to one with the table above: other physics, other behaviour policies, other "
-              "references, 100k training steps. For orientation only.", "",
-              "| dataset | env | " + " | ".join(METHOD_NAMES[m] for m in METHODS) + " | CQL | BEAR | BRAC-v | AWR |",
-              "|---|---|" + "---|" * (len(METHODS) + 4)]
+    return lines
+
+
+def _published() -> list[str]:
+    lines = ["", "## Published (seed Table 1: gym MuJoCo, D4RL v2 data, D4RL normalisation)", "",
+             "Not comparable one to one with the table above: other physics, other behaviour policies, other "
+             "references, 100k training steps. For orientation only.", "",
+             "| dataset | env | " + " | ".join(METHOD_NAMES[m] for m in METHODS) + " | CQL | BEAR | BRAC-v | AWR |",
+             "|---|---|" + "---|" * (len(METHODS) + 4)]
     for (d, e), v in PUBLISHED.items():
         lines.append(f"| {d} | {e} | " + " | ".join(f"{x:.1f}" for x in [v[m] for m in METHODS]
                                                      + list(PUBLISHED_BASELINES[d, e].values())) + " |")
-    return "\n".join(lines) + "\n"
+    return lines

@@ -350,6 +350,12 @@ def test_versus_dt_is_welchs_difference_with_a_two_se_verdict(table1):
     assert "| medium | hopper | -8.0 ± 2.3: behind | +1.3 ± 1.8: level |" in md
     assert "behind DT in 1 of 1 cells with ≥ 2 seeds each: hopper medium (-8.0)" in md
     assert "without a result at `study` (every cell '–'): CQL, BEAR, BRAC-v, AWR, IQL, TD3+BC." in md
+    # the header says what a preset's numbers are: study's setting, paper's as they are, any other not a result
+    heads = {p: table1.markdown({"preset": p, "table": table, "averages": {}, "dataset_score": {},
+                                 "cost_rank_agreement": {}}).split("| dataset |")[0] for p in ("study", "paper", "cpu")}
+    assert "The `study` preset:" in heads["study"] and "Not a result" not in heads["study"]
+    assert "The `study` preset:" not in heads["paper"] and "Not a result" not in heads["paper"]
+    assert "**Not a result**: the `cpu` preset" in heads["cpu"]
 
 
 def test_a_result_trained_with_another_config_is_an_error_not_kept(table1, tmp_path, monkeypatch):
