@@ -336,3 +336,28 @@ def test_plot_compares_runs_with_mean_and_std_over_seeds(full_run, tmp_path):
     assert matplotlib.image.imread(png).shape[1] == 1500
     assert plot_main([str(tmp_path / "none"), "--out", str(tmp_path / "x.png")]) == 2
     assert not (tmp_path / "x.png").exists()
+
+
+# each bounded setting: a value just outside its range, the range its one error line names, a value on its edge
+BOUNDS = [("dropout", 1.0, "in [0, 1)", 0.0), ("eval_episodes", -1, ">= 0", 0), ("weight_decay", -1e-4, ">= 0", 0.0),
+          ("grad_clip", 0.0, "> 0", 1e-3), ("discount", 1.5, "in [0, 1]", 1.0), ("iql_expectile", 1.0, "in (0, 1)", 0.5),
+          ("cql_alpha", -1.0, ">= 0", 0.0), ("tau", 1.5, "in (0, 1]", 1.0), ("brac_alpha", -0.1, ">= 0", 0.0),
+          ("ema_decay", 1.0, "in [0, 1)", 0.0), ("cost_label_noise", 0.5, "in [0, 0.5)", 0.0),
+          ("physics_threads", -1, ">= 0", 0), ("devices", -1, ">= 0", 0), ("seed", -1, ">= 0", 0),
+          ("dataset_seed", -1, ">= 0", 0), ("dataset_transitions", 0, "> 0", 1), ("rtg_scale", 0.0, "> 0", None),
+          ("actor_lr", -1e-3, "> 0", None), ("alpha_max", 0.0, "> 0", None)]
+
+
+@pytest.mark.parametrize("name,bad,says,edge", BOUNDS)
+def test_a_setting_out_of_range_is_one_error_naming_that_setting_and_its_range(name, bad, says, edge):
+    """Not one message for several settings ('need --eval-episodes >= 0, 0 <= --dropout < 1, ...'): the one that is
+    wrong, its range, and the value given."""
+    import dataclasses
+
+    from minsubdt_jax.config import PRESETS, validate
+
+    flag = "--" + name.replace("_", "-")
+    with pytest.raises(ValueError) as e:
+        validate(dataclasses.replace(PRESETS["smoke"], **{name: bad}))
+    assert str(e.value).startswith(f"{flag} must be {says}") and f"got {bad}" in str(e.value), str(e.value)
+    validate(dataclasses.replace(PRESETS["smoke"], **{name: edge}))

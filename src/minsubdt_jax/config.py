@@ -168,11 +168,61 @@ CHOICES = {"env": tuple(ENVS), "preset": tuple(PRESETS), "physics": PHYSICS,
            "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES, "precision": ("f32", "tf32", "bf16")}
 
 
+# The range of each bounded number: (kind, low, high, the range as its error says it), high None: no upper bound.
+# kind: "closed" [low, high], "open" (low, high), "half" [low, high), "open-closed" (low, high]. A field that may
+# be None (unset: the agent's own default) is checked when set.
+_POSITIVE = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps", "episode_length",
+             "learning_rate", "beta", "warmup_steps", "cost_dim", "cost_steps", "cost_pairs", "seeds", "mlp_hidden",
+             "mlp_layers", "eval_episodes_periodic", "critic_batch_size", "iql_beta", "td3bc_alpha", "cql_actions",
+             "dataset_transitions", "ac_hidden", "ac_layers", "actor_lr", "critic_lr", "rtg_scale", "alpha_max")
+RANGES = {
+    **{name: ("open", 0, None, "> 0") for name in _POSITIVE},
+    **{name: ("closed", 0, None, ">= 0") for name in ("eval_episodes", "weight_decay", "cql_alpha", "brac_alpha",
+                                                        "seed", "dataset_seed")},
+    "physics_threads": ("closed", 0, None, ">= 0 (0: all cores)"),
+    "devices": ("closed", 0, None, ">= 0 (0: all local devices)"),
+    "grad_clip": ("open", 0, None, "> 0"),
+    "dropout": ("half", 0, 1, "in [0, 1)"),
+    "ema_decay": ("half", 0, 1, "in [0, 1) (0: off)"),
+    "cost_label_noise": ("half", 0, 0.5, "in [0, 0.5)"),
+    "discount": ("closed", 0, 1, "in [0, 1]"),
+    "iql_expectile": ("open", 0, 1, "in (0, 1)"),
+    "tau": ("open-closed", 0, 1, "in (0, 1]"),
+}
+
+
+def _in_range(v, kind: str, lo, hi) -> bool:
+    low_ok = lo is None or (v > lo if kind in ("open", "open-closed") else v >= lo)
+    high_ok = hi is None or (v <= hi if kind in ("closed", "open-closed") else v < hi)
+    return low_ok and high_ok
+
+
 def validate(cfg: Config) -> Config:
     """Raise ValueError with one clear message on an unusable config; return it unchanged otherwise."""
     for f in dataclasses.fields(cfg):  # NaN or inf in any number (--target-return nan ran and wrote NaN scores)
         if isinstance(getattr(cfg, f.name), float) and not math.isfinite(getattr(cfg, f.name)):
             raise ValueError(f"--{f.name.replace('_', '-')} must be a finite number, got {getattr(cfg, f.name)}")
+    _check_names(cfg)
+    for name, (kind, lo, hi, says) in RANGES.items():
+        v = getattr(cfg, name)
+        if v is not None and not _in_range(v, kind, lo, hi):
+            raise ValueError(f"--{name.replace('_', '-')} must be {says}, got {v}")
+    if cfg.context_len > cfg.episode_length:
+        raise ValueError(f"--context-len {cfg.context_len} is longer than an episode (--episode-length "
+                         f"{cfg.episode_length})")
+    if cfg.eval_every < 0 or cfg.eval_every % cfg.chunk_steps:
+        raise ValueError(f"--eval-every must be 0 or a multiple of --chunk-steps ({cfg.chunk_steps}), got {cfg.eval_every}")
+    if cfg.embed_dim % cfg.n_heads:
+        raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
+    if cfg.pretrain_steps is not None and not 0 <= cfg.pretrain_steps < cfg.steps:
+        raise ValueError(f"--pretrain-steps must be in [0, --steps), got {cfg.pretrain_steps}")
+    distributed_settings(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
+    return cfg
+
+
+def _check_names(cfg: Config) -> None:
+    """The settings that name things: choices, methods (one agent, one kind of return token), datasets, cost
+    metrics, loggers."""
     for name, allowed in CHOICES.items():
         allowed = tuple(ENVS) if name == "env" else allowed  # with any registered since (envs.register_env)
         if getattr(cfg, name) not in allowed and not (name == "dynamics" and cfg.dynamics is None):
@@ -194,46 +244,3 @@ def validate(cfg: Config) -> Config:
     logger_names(cfg.logger)
     if cfg.eval_costs is not None:
         check_costs(cfg.env, cfg.eval_costs, "--eval-costs")
-    if cfg.dataset_transitions is not None and cfg.dataset_transitions < 1:
-        raise ValueError(f"--dataset-transitions must be > 0, got {cfg.dataset_transitions}")
-    if cfg.physics_threads < 0:
-        raise ValueError(f"--physics-threads must be >= 0 (0: all cores), got {cfg.physics_threads}")
-    positive = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps",
-                "episode_length", "learning_rate", "beta", "warmup_steps", "cost_dim",
-                "cost_steps", "cost_pairs", "seeds", "mlp_hidden", "mlp_layers", "eval_episodes_periodic",
-                "critic_batch_size", "tau", "iql_beta", "td3bc_alpha", "cql_actions")
-    for name in positive:
-        if not getattr(cfg, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
-    if cfg.context_len > cfg.episode_length:
-        raise ValueError(f"--context-len {cfg.context_len} is longer than an episode (--episode-length "
-                         f"{cfg.episode_length})")
-    if cfg.seed < 0 or cfg.dataset_seed < 0:
-        raise ValueError(f"--seed and --dataset-seed must be >= 0, got {cfg.seed} and {cfg.dataset_seed}")
-    if cfg.eval_every < 0 or cfg.eval_every % cfg.chunk_steps:
-        raise ValueError(f"--eval-every must be 0 or a multiple of --chunk-steps ({cfg.chunk_steps}), got {cfg.eval_every}")
-    if cfg.devices < 0:
-        raise ValueError(f"--devices must be >= 0 (0: all local devices), got {cfg.devices}")
-    if cfg.eval_episodes < 0 or not 0 <= cfg.dropout < 1 or cfg.weight_decay < 0 or cfg.grad_clip <= 0:
-        raise ValueError("need --eval-episodes >= 0, 0 <= --dropout < 1, --weight-decay >= 0, --grad-clip > 0")
-    if cfg.embed_dim % cfg.n_heads:
-        raise ValueError(f"--embed-dim ({cfg.embed_dim}) must be divisible by --n-heads ({cfg.n_heads})")
-    for name in ("ac_hidden", "ac_layers", "actor_lr", "critic_lr"):
-        if getattr(cfg, name) is not None and not getattr(cfg, name) > 0:
-            raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
-    if not (0 <= cfg.discount <= 1 and 0 < cfg.iql_expectile < 1 and cfg.cql_alpha >= 0 and cfg.tau <= 1
-            and cfg.brac_alpha >= 0):
-        raise ValueError("need 0 <= --discount <= 1, 0 < --iql-expectile < 1, --cql-alpha >= 0, --tau <= 1, "
-                         "--brac-alpha >= 0")
-    if cfg.pretrain_steps is not None and not 0 <= cfg.pretrain_steps < cfg.steps:
-        raise ValueError(f"--pretrain-steps must be in [0, --steps), got {cfg.pretrain_steps}")
-    if not 0 <= cfg.ema_decay < 1:
-        raise ValueError(f"--ema-decay must be in [0, 1) (0: off), got {cfg.ema_decay}")
-    if not 0 <= cfg.cost_label_noise < 0.5:
-        raise ValueError(f"--cost-label-noise must be in [0, 0.5), got {cfg.cost_label_noise}")
-    if cfg.rtg_scale is not None and not cfg.rtg_scale > 0:
-        raise ValueError(f"--rtg-scale must be > 0, got {cfg.rtg_scale}")
-    if cfg.alpha_max is not None and not cfg.alpha_max > 0:
-        raise ValueError(f"--alpha-max must be > 0, got {cfg.alpha_max}")
-    distributed_settings(cfg.coordinator_address, cfg.num_processes, cfg.process_id)
-    return cfg
