@@ -117,6 +117,39 @@ def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
       DatasetError: missing keys, mismatched lengths, wrong ranks or dtypes, values that are not finite once in
         float32 (NaN, inf, or beyond float32's range), flags other than 0/1, or no transitions.
     """
+    a = _checked_arrays(arrays, source)
+    ends = a["terminals"].astype(bool) | a["timeouts"].astype(bool)
+    stops = np.nonzero(ends)[0] + 1
+    if len(stops) == 0:
+        raise DatasetError(f"{source}: no episode ends: neither 'terminals' nor 'timeouts' is ever set")
+    starts = np.concatenate([[0], stops[:-1]])
+    lengths = (stops - starts).astype(np.int32)
+    T = int(lengths.max())
+    idx = starts[:, None] + np.arange(T)[None, :]
+    valid = np.arange(T)[None, :] < lengths[:, None]
+    idx = np.where(valid, idx, 0)
+
+    def pad(x):
+        out = x[idx].astype(np.float32)
+        out[~valid] = 0.0
+        return out
+
+    data = Trajectories(
+        observations=pad(a["observations"]),
+        actions=pad(a["actions"]),
+        rewards=pad(a["rewards"]),
+        lengths=lengths,
+        terminals=a["terminals"].astype(bool)[stops - 1],
+    )
+    with np.errstate(over="ignore", invalid="ignore"):
+        bad = np.nonzero(~np.isfinite(data.returns))[0]
+    if len(bad):
+        raise DatasetError(f"{source}: the returns of {len(bad)} episodes overflow float32 (first {bad[:5].tolist()})")
+    return data
+
+
+def _checked_arrays(arrays: dict, source: str) -> dict:
+    """:func:`from_flat`'s checks (its Raises) on the D4RL keys; the arrays, observations/actions/rewards float32."""
     missing = [k for k in REQUIRED_KEYS if k not in arrays]
     if missing:
         raise DatasetError(f"{source}: missing keys {missing}; a D4RL-layout dataset needs {list(REQUIRED_KEYS)}")
@@ -149,34 +182,7 @@ def from_flat(arrays: dict, source: str = "dataset") -> Trajectories:
             rows = np.nonzero(bad)[0]
             raise DatasetError(f"{source}: {k!r} must be 0/1 (or bool), got {a[k][rows[0]]!r} at {len(rows)} rows, "
                                f"first {rows[:5].tolist()}")
-    ends = a["terminals"].astype(bool) | a["timeouts"].astype(bool)
-    stops = np.nonzero(ends)[0] + 1
-    if len(stops) == 0:
-        raise DatasetError(f"{source}: no episode ends: neither 'terminals' nor 'timeouts' is ever set")
-    starts = np.concatenate([[0], stops[:-1]])
-    lengths = (stops - starts).astype(np.int32)
-    T = int(lengths.max())
-    idx = starts[:, None] + np.arange(T)[None, :]
-    valid = np.arange(T)[None, :] < lengths[:, None]
-    idx = np.where(valid, idx, 0)
-
-    def pad(x):
-        out = x[idx].astype(np.float32)
-        out[~valid] = 0.0
-        return out
-
-    data = Trajectories(
-        observations=pad(a["observations"]),
-        actions=pad(a["actions"]),
-        rewards=pad(a["rewards"]),
-        lengths=lengths,
-        terminals=a["terminals"].astype(bool)[stops - 1],
-    )
-    with np.errstate(over="ignore", invalid="ignore"):
-        bad = np.nonzero(~np.isfinite(data.returns))[0]
-    if len(bad):
-        raise DatasetError(f"{source}: the returns of {len(bad)} episodes overflow float32 (first {bad[:5].tolist()})")
-    return data
+    return a
 
 
 def from_padded(observations, actions, rewards, lengths, terminals) -> Trajectories:
