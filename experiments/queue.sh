@@ -5,6 +5,7 @@
 #   bash experiments/queue.sh table    # issue 54: Table 1's DT-family sweep at study, seed 0, then 1, then 2
 #   bash experiments/queue.sh curves   # issue 54: the curves that chose study, with the fixed DT (revision 2)
 #   bash experiments/queue.sh front    # issue 55: the fronts' remaining cells
+#   bash experiments/queue.sh status   # what each lane has left, from the committed result files
 #
 # In the background, one lane per log (each lane waits while another process runs its own script):
 #   mkdir -p runs/logs && for l in table curves front; do
@@ -68,10 +69,31 @@ front() {
     done
 }
 
+status() {  # what each lane has left, from the committed result files
+    python - << 'PY'
+import json, os
+R = "experiments/results"
+ENVS, DATASETS = ("halfcheetah", "hopper", "walker"), ("medium-expert", "medium", "medium-replay")
+METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")
+have = lambda e, d, s: all(os.path.exists(f"{R}/table1/study/{e}-{d}-{m}-s{s}.json") for m in METHODS)
+left = [f"{e}-{d} s{s}" for s in range(3) for e in ENVS for d in DATASETS if not have(e, d, s)]
+print(f"table: {27 - len(left)} of 27 seed-units landed; left: {', '.join(left) or 'none'}")
+for e, d in (("walker", "medium"), ("hopper", "medium-replay"), ("halfcheetah", "medium-expert")):
+    f = f"{R}/curves/{e}-{d}-cpu-k20-cosine-ema0.999-lr0.001-10000steps-rev2.json"
+    state = "missing" if not os.path.exists(f) else "partial" if json.load(open(f)).get("partial") else "done"
+    print(f"curve {e} {d}: {state}")
+for cell in ("walker-medium-replay", "halfcheetah-medium-replay", "walker-medium"):
+    f = f"{R}/front/{cell}.json"
+    r = json.load(open(f)) if os.path.exists(f) else {}
+    n = {m: len(v) for m, v in r.get("sweeps", {}).items()}
+    print(f"front {cell}: targets {n or 'none'}, scalar runs {sorted(r.get('scalar', {})) or 'none'}")
+PY
+}
+
 {  # parsed whole before it runs, and exits: an edit of this file does not reach a lane that is running
     case "${1:-}" in
-        table | curves | front) "$1" ;;
-        *) echo "usage: bash experiments/queue.sh table|curves|front" >&2; exit 2 ;;
+        table | curves | front | status) "$1" ;;
+        *) echo "usage: bash experiments/queue.sh table|curves|front|status" >&2; exit 2 ;;
     esac
     exit
 }
