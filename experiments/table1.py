@@ -71,7 +71,7 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
     if train_fn is None:
         from minsubdt_jax.train import train as train_fn
     from minsubdt_jax.agents import preset_config
-    from minsubdt_jax.rundir import Interrupted, checkpoint_steps, write_atomic
+    from minsubdt_jax.rundir import Interrupted, checkpoint_steps
 
     check_critic_settings(preset, methods)  # before anything is written
     out_dir = result_dir(variant(preset, costs), results_root)
@@ -101,22 +101,30 @@ def run_sweep(preset="cpu", envs=ENVS, datasets=DATASETS, methods=METHODS, seeds
             log(traceback.format_exc())
             status["failed"] += names
             continue
-        scores, written = [], []
-        for j, name in enumerate(names):
-            one = per_seed_results(res, j)
-            curve = model_curve(cfg.out, one["config"])  # the model's method, seed and dataset
-            one.update({"curve": curve} if curve else {})
-            d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
-            dst = path(env, d, m, s)
-            assert name == run_name(env, d, m, s), (name, d, m, s)
-            write_atomic(dst, json.dumps(compact(one)))  # a result file is complete or absent
-            written.append(dst)
-            scores.append(f"{one.get('eval', {}).get('normalized_score_mean', float('nan')):.1f}")
+        written, scores = write_unit(res, names, cfg.out, env, path)
         log(f"[{i + 1}/{len(todo)}] {label}: normalised {' '.join(scores)} ({time.time() - t0:.0f} s)")
         status["done"] += names
         if on_unit is not None:
             on_unit(written, f"{label}: normalised {' '.join(scores)}")
     return status
+
+
+def write_unit(res: dict, names: list[str], run_dir: str, env: str, path) -> tuple[list[str], list[str]]:
+    """One result file per model of a finished program (``res``: its results.json; ``names``: the models' run
+    names, in the program's order), each with its training curve; ``(paths written, normalised scores)``."""
+    from minsubdt_jax.rundir import write_atomic
+
+    written, scores = [], []
+    for j, name in enumerate(names):
+        one = per_seed_results(res, j)
+        curve = model_curve(run_dir, one["config"])  # the model's method, seed and dataset
+        one.update({"curve": curve} if curve else {})
+        d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]
+        assert name == run_name(env, d, m, s), (name, d, m, s)
+        written.append(path(env, d, m, s))
+        write_atomic(written[-1], json.dumps(compact(one)))  # a result file is complete or absent
+        scores.append(f"{one.get('eval', {}).get('normalized_score_mean', float('nan')):.1f}")
+    return written, scores
 
 
 def load_results(preset="cpu", results_root=RESULTS) -> list[dict]:
