@@ -33,11 +33,11 @@ table() {
     for s in 0 1 2; do
         log "table1 --seeds $s"
         python experiments/table1.py run --preset study --commit --seeds "$s" || { log "table1 s$s rc=$?"; return 1; }
+        python experiments/table1.py aggregate --preset study > /dev/null  # the report of what has landed
+        commit "Table 1 (study): the report after seed $s's pass; resume: bash experiments/queue.sh table" \
+            experiments/results/table1.md experiments/results/table1.json experiments/results/table1_costs_*.png \
+            experiments/results/table1_curves
     done
-    python experiments/table1.py aggregate --preset study > /dev/null
-    commit "Table 1 (study): aggregate of the landed cells; resume: bash experiments/queue.sh table" \
-        experiments/results/table1.md experiments/results/table1.json experiments/results/table1_costs_*.png \
-        experiments/results/table1_curves
 }
 
 curves() {
