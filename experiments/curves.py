@@ -57,13 +57,6 @@ def run(a) -> dict:
     from minsubdt_jax.config import PRESETS, validate
     from minsubdt_jax.train import train
 
-    done = os.path.join(RESULTS, name_of(a) + ".json")
-    if os.path.exists(done):
-        with open(done) as f:
-            curve = json.load(f)
-        if not curve.get("partial"):  # its run directory may be on another machine: nothing to train again
-            print(f"{done}: complete; nothing to do", flush=True)
-            return curve
     out = os.path.join(a.runs_root, name_of(a))
     given = {"warmup_steps": a.warmup, "brac_alpha": a.brac_alpha, "pretrain_steps": a.pretrain_steps,
              "learning_rate": a.lr}  # flags left unset keep the model's preset
@@ -72,7 +65,15 @@ def run(a) -> dict:
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,
                               out=out, **{k: v for k, v in given.items() if v is not None})
-    res = train(validate(cfg), resume=os.path.exists(os.path.join(out, "config.json")))
+    validate(cfg)  # a bad setting is an error before a finished curve is skipped
+    done = os.path.join(RESULTS, name_of(a) + ".json")
+    if os.path.exists(done):
+        with open(done) as f:
+            curve = json.load(f)
+        if not curve.get("partial"):  # its run directory may be on another machine: nothing to train again
+            print(f"{done}: complete; nothing to do", flush=True)
+            return curve
+    res = train(cfg, resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)
     with open(os.path.join(RESULTS, name_of(a) + ".json"), "w") as f:
@@ -243,7 +244,10 @@ def main(argv=None) -> int:
         ties(a.cells, [None if c == "default" else c for c in a.cost_sets], alpha_max=a.alpha_max)
         return 0
     if a.action == "run":
-        run(a)
+        try:
+            run(a)
+        except ValueError as e:  # a bad setting (or data): one line, nothing trained
+            build_parser().error(str(e))
     if a.action == "snapshot":
         snapshot(a)
     print(report())

@@ -84,9 +84,9 @@ def means(per_seed: list[dict]) -> dict:
 
 
 def complete(out: dict, a) -> bool:
-    """Whether a cell's results file ``out`` holds all the work of ``a``: the same preset, seeds and episodes, every
-    target of the grid for both vector methods, and every scalar run."""
-    if not out.get("demo_costs") or any(out.get(k) != getattr(a, k) for k in ("preset", "seeds", "episodes")):
+    """Whether a cell's results file ``out`` holds all the work of ``a``: every target of the grid for both vector
+    methods, and every scalar run."""
+    if not out.get("demo_costs"):  # (its preset, seeds and episodes are a's: check_args)
         return False
     demo, sweeps = np.asarray(out["demo_costs"]), out.get("sweeps", {})
     return all(any(r["target"] == t for r in sweeps.get(m, [])) for m in VECTOR
@@ -224,7 +224,37 @@ def main(argv=None) -> None:
     r.add_argument("--runs-root", default="runs/front")
     sub.add_parser("report")
     a = p.parse_args(argv)
-    run(a) if a.cmd == "run" else report(a)
+    if a.cmd == "report":
+        return report(a)
+    try:
+        check_args(a)
+        run(a)
+    except ValueError as e:  # a bad setting, or one the training refuses: one line, nothing written
+        p.error(str(e))
+
+
+def check_args(a) -> None:
+    """One ValueError on a setting ``run`` cannot use, before anything is trained or written; among them settings
+    other than those the cell's results file was made with (they would be rewritten beside its measured targets)."""
+    from minsubdt_jax.data import NAMED_DATASETS
+    from minsubdt_jax.envs import ENVS
+
+    if a.env not in ENVS:
+        raise ValueError(f"--env must be one of {list(ENVS)}, got {a.env!r}")
+    if a.dataset not in NAMED_DATASETS:
+        raise ValueError(f"--dataset must be one of {list(NAMED_DATASETS)}, got {a.dataset!r}")
+    for name, low in (("seeds", 1), ("episodes", 1), ("grid", 2), ("steps", 1)):
+        v = getattr(a, name)
+        if v is not None and v < low:
+            raise ValueError(f"--{name} must be {'> 0' if low == 1 else f'>= {low}'}, got {v}")
+    path = os.path.join(RESULTS, cell_name(a) + ".json")
+    if os.path.exists(path):
+        with open(path) as f:
+            made = json.load(f)
+        differ = {k: made[k] for k in ("preset", "seeds", "episodes") if k in made and made[k] != getattr(a, k)}
+        if differ:
+            raise ValueError(f"{path} was made with " + " ".join(f"--{k} {v}" for k, v in differ.items())
+                             + ": give the same, or --tag NAME for a cell file of its own")
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ LayerNorm epsilon. Torch threads: as many as the machine's cores (2 here), as XL
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import dataclasses
 import json
 import os
@@ -245,6 +246,10 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--ours-out", default=None, help="our run's directory (default runs/peer/<env>-<dataset>-<preset>-dt)")
     a = p.parse_args(argv)
+    if a.command != "report" and not all(importlib.util.find_spec(m) for m in ("torch", "d3rlpy")):
+        p.error("needs torch and d3rlpy, which are not our dependencies: make their venv with 'python3 -m venv "
+                ".venv-peer && .venv-peer/bin/pip install -e . d3rlpy==2.8.1 torch' and run this with "
+                ".venv-peer/bin/python (README, *Our DT against d3rlpy's*)")
     if a.command == "time":
         a.steps = a.steps or 200
     {"run": run, "time": time_steps, "report": report}[a.command](a)

@@ -233,6 +233,8 @@ def main(argv=None) -> int:
 
     if a.preset not in PRESETS:
         p.error(f"--preset must be one of {list(PRESETS)}")
+    if min(a.seeds) < 0 or len(set(a.seeds)) != len(a.seeds):
+        p.error(f"--seeds must be >= 0, each once, got {a.seeds}")
     if a.costs is not None:
         from minsubdt_jax.costs import check_costs
 

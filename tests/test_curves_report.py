@@ -123,3 +123,18 @@ def test_run_skips_a_finished_curve_and_resumes_a_partial_one(tmp_path, monkeypa
         raise AssertionError("a partial curve was not resumed")
     except Reached:
         pass
+
+
+def test_bad_input_is_one_error_line(capsys):
+    """A bad setting is one line (not a traceback), and is checked before a finished curve is skipped."""
+    import curves
+
+    flags = ["--env", "hopper", "--dataset", "medium-replay", "--model", "cpu", "--steps", "10000", "--tag", "rev2",
+             "--lr-schedule", "cosine", "--ema", "0.999", "--lr", "1e-3", "--eval-every", "1000", "--episodes", "30"]
+    for bad, says in ((["--env", "nope"], "--env must be one of"), (["--seeds", "0"], "--seeds must be > 0")):
+        try:
+            curves.main(["run", *flags, *bad])
+            raise AssertionError(f"{bad} ran")
+        except SystemExit as e:
+            err = capsys.readouterr().err
+            assert e.code == 2 and says in err and "Traceback" not in err, err

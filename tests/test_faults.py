@@ -373,3 +373,18 @@ def test_the_progress_bar_moves_within_a_chunk_and_the_pieces_train_the_same_ste
     assert np.array_equal(np.asarray(joined), np.asarray(losses))
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(state)):
         assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_the_peer_check_without_its_venv_is_one_line_saying_how(capsys):
+    """experiments/peer_dt.py needs torch and d3rlpy, which are not ours: without them, one error line with the
+    README's command that makes their venv (it was an ImportError traceback)."""
+    import importlib.util
+
+    import peer_dt  # experiments/ (pyproject's pythonpath)
+
+    if importlib.util.find_spec("d3rlpy") is not None:
+        pytest.skip("d3rlpy is installed here")
+    with pytest.raises(SystemExit) as e:
+        peer_dt.main(["run", "--env", "hopper"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "python3 -m venv .venv-peer" in err and "Traceback" not in err, err

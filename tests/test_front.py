@@ -46,10 +46,8 @@ def test_a_complete_cell_is_not_trained_again(front, tmp_path, monkeypatch, caps
     monkeypatch.setattr(front, "train_runs", reach)
     front.main(ARGS)
     assert "complete" in capsys.readouterr().out
-    with pytest.raises(Reached):  # another grid, or more seeds, is other work
+    with pytest.raises(Reached):  # another grid is other work
         front.main(ARGS[:-1] + ["3"])
-    with pytest.raises(Reached):
-        front.main(ARGS + ["--seeds", "5"])
 
 
 @pytest.mark.parametrize("gap", ["drop_target", "drop_scalar"])
@@ -58,3 +56,31 @@ def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
     monkeypatch.setattr(front, "train_runs", reach)
     with pytest.raises(Reached):
         front.main(ARGS)
+
+
+@pytest.mark.parametrize("flags,says", [
+    (["--env", "nope"], "--env must be one of"), (["--dataset", "nope"], "--dataset must be one of"),
+    (["--grid", "1"], "--grid must be >= 2"), (["--seeds", "0"], "--seeds must be > 0"),
+    (["--episodes", "0"], "--episodes must be > 0"), (["--steps", "0"], "--steps must be > 0")])
+def test_bad_input_is_one_error_line_and_changes_nothing(front, tmp_path, monkeypatch, capsys, flags, says):
+    cell_file(front, tmp_path)
+    before = (tmp_path / "walker-medium-replay.json").read_text()
+    monkeypatch.setattr(front, "train_runs", reach)
+    with pytest.raises(SystemExit) as e:
+        front.main(["run", "--env", "walker", "--dataset", "medium-replay", "--grid", "2", *flags])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and says in err and "Traceback" not in err, err
+    assert (tmp_path / "walker-medium-replay.json").read_text() == before
+
+
+def test_other_settings_on_a_cell_with_results_are_an_error_not_a_rewrite(front, tmp_path, monkeypatch, capsys):
+    """The cell's file was made with 3 seeds x 100 episodes: a run with 2 seeds would have rewritten its settings
+    beside targets measured with 3 (it did, before this test). Another --tag keeps them apart."""
+    cell_file(front, tmp_path, drop_target=True)
+    before = (tmp_path / "walker-medium-replay.json").read_text()
+    monkeypatch.setattr(front, "train_runs", reach)
+    with pytest.raises(SystemExit) as e:
+        front.main([*ARGS, "--seeds", "2"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--seeds 3" in err and "--tag" in err
+    assert (tmp_path / "walker-medium-replay.json").read_text() == before

@@ -475,3 +475,12 @@ def test_ctrl_c_stops_the_sweep_not_only_its_unit(table1, tmp_path, monkeypatch,
     err = capsys.readouterr().err
     assert err.startswith("interrupted: the sweep stopped") and err.count("\n") == 1
     assert "resume with: python experiments/table1.py run --preset smoke --envs hopper --methods dt --seeds 0" in err
+
+
+def test_a_negative_seed_is_one_error_not_a_sweep_of_failures(table1, monkeypatch, capsys):
+    """'--seeds -1' ran every unit and reported 36 failures; it is one error line before anything runs."""
+    monkeypatch.setattr(table1, "run_sweep", lambda *a, **k: pytest.fail("the sweep ran"))
+    with pytest.raises(SystemExit) as e:
+        table1.main(["run", "--preset", "smoke", "--seeds", "0", "-1"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--seeds must be >= 0" in err and "Traceback" not in err
