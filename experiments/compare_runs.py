@@ -47,11 +47,14 @@ def compare(a: dict, b: dict) -> dict:
     return out
 
 
-def main() -> int:
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_a")
     p.add_argument("run_b")
-    a = p.parse_args()
+    a = p.parse_args(argv)
+    for run in (a.run_a, a.run_b):
+        if not os.path.isdir(os.path.join(run, "checkpoints")):
+            p.error(f"{run}: not a run directory (no checkpoints)")
     out = compare(load(a.run_a), load(a.run_b))
     print(json.dumps(out, indent=1))
     return 0 if out["identical"] else 1

@@ -107,14 +107,18 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main():
+def main(argv=None):
+    from minsubdt_jax.data import NAMED_DATASETS
+    from minsubdt_jax.envs import ENVS
+
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
-    p.add_argument("--datasets", nargs="+", default=["medium", "medium-replay", "medium-expert"])
+    p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"], choices=tuple(ENVS))
+    p.add_argument("--datasets", nargs="+", default=["medium", "medium-replay", "medium-expert"],
+                   choices=NAMED_DATASETS)
     p.add_argument("--transitions", type=int, default=None, help="default: D4RL's size of each dataset")
     p.add_argument("--physics", default="auto", choices=["auto", "mjx", "mujoco"])
     p.add_argument("--out", default=RESULTS)
-    a = p.parse_args()
+    a = p.parse_args(argv)
     rows = [analyse(e, d, a.transitions, physics=a.physics) for e in a.envs for d in a.datasets]
     os.makedirs(a.out, exist_ok=True)
     with open(os.path.join(a.out, "cost_features.json"), "w") as f:

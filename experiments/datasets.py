@@ -70,15 +70,17 @@ def kept_rows(a) -> list[dict]:
     return [r for r in old["rows"] if not (r["env"] in a.envs and r["dataset"] in a.datasets)]
 
 
-def main():
+def main(argv=None):
+    from minsubdt_jax.envs import ENVS
+
     p = argparse.ArgumentParser()
-    p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"])
+    p.add_argument("--envs", nargs="+", default=["hopper", "walker", "halfcheetah"], choices=tuple(ENVS))
     p.add_argument("--transitions", type=int, default=None, help="default: D4RL's size of each dataset")
     p.add_argument("--physics", choices=PHYSICS, default="auto")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--datasets", nargs="+", default=list(NAMED_DATASETS), choices=NAMED_DATASETS)
     p.add_argument("--cached", action="store_true", help="use files already in the cache (no generation time)")
-    a = p.parse_args()
+    a = p.parse_args(argv)
     a.physics = resolve_physics(a.physics)
     os.makedirs(HERE, exist_ok=True)
     rows = kept_rows(a)

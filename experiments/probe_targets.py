@@ -35,6 +35,8 @@ def main(argv=None) -> int:
     p.add_argument("--offline", action="store_true", help="action errors on the data's windows, no episodes")
     p.add_argument("--windows", type=int, default=4096)
     a = p.parse_args(argv)
+    if not os.path.exists(os.path.join(a.run, "config.json")):
+        p.error(f"{a.run}: not a run directory (no config.json)")
     import orbax.checkpoint as ocp
 
     from minsubdt_jax.agents import make_agent

@@ -388,3 +388,19 @@ def test_the_peer_check_without_its_venv_is_one_line_saying_how(capsys):
         peer_dt.main(["run", "--env", "hopper"])
     err = capsys.readouterr().err
     assert e.value.code == 2 and "python3 -m venv .venv-peer" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("script,argv,says", [
+    ("cost_features", ["--envs", "nope"], "invalid choice: 'nope'"),
+    ("cost_features", ["--datasets", "nope"], "invalid choice: 'nope'"),
+    ("datasets", ["--envs", "nope"], "invalid choice: 'nope'"),
+    ("probe_targets", ["/nonexistent-run"], "not a run directory"),
+    ("compare_runs", ["/nonexistent-a", "/nonexistent-b"], "not a run directory")])
+def test_an_experiment_scripts_bad_input_is_one_error_line(script, argv, says, capsys):
+    """A newcomer's pass over experiments/ (2026-12-06): these were tracebacks."""
+    import importlib
+
+    with pytest.raises(SystemExit) as e:
+        importlib.import_module(script).main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and says in err and "Traceback" not in err, err
