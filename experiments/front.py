@@ -93,15 +93,21 @@ def complete(out: dict, a) -> bool:
                for t in grid_targets(m, demo, out["beta"], a.grid)) and set(RUNS) - {"vec"} <= set(out.get("scalar", {}))
 
 
-def run(a) -> None:
+def cell_file(a) -> tuple[str, dict]:
+    """The cell's results file: its path, and what it holds so far (``{}`` before its first target)."""
+    path = os.path.join(RESULTS, cell_name(a) + ".json")
+    if not os.path.exists(path):
+        return path, {}
+    with open(path) as f:
+        return path, json.load(f)
+
+
+def run(a, path: str, out: dict) -> None:
+    """Trains what the cell ``a`` lacks and adds each finished target and scalar run to ``out`` (what its results
+    file at ``path`` holds so far), saving it after each."""
     from minsubdt_jax.atomic import write_atomic
     from minsubdt_jax.evaluate import evaluate_run, load_run
 
-    path = os.path.join(RESULTS, cell_name(a) + ".json")
-    out = {}
-    if os.path.exists(path):
-        with open(path) as f:
-            out = json.load(f)
     if complete(out, a):  # its run directories may be on another machine: nothing to train again
         print(f"{path}: complete (every target and scalar run); nothing to do", flush=True)
         return
@@ -227,18 +233,23 @@ def main(argv=None) -> None:
     if a.cmd == "report":
         return report(a)
     try:
-        check_args(a)
-        run(a)
+        path, made = cell_file(a)
+        check_args(a, path, made)
+        run(a, path, made)
     except ValueError as e:  # a bad setting, or one the training refuses: one line, nothing written
         p.error(str(e))
 
 
-def check_args(a) -> None:
+def check_args(a, path: str, made: dict) -> None:
     """One ValueError on a setting ``run`` cannot use, before anything is trained or written; among them settings
-    other than those the cell's results file was made with (they would be rewritten beside its measured targets)."""
+    other than those the cell's results file (``made``, at ``path``) was made with (they would be rewritten beside
+    its measured targets)."""
+    from minsubdt_jax.config import PRESETS
     from minsubdt_jax.data import NAMED_DATASETS
     from minsubdt_jax.envs import ENVS
 
+    if a.preset not in PRESETS:
+        raise ValueError(f"--preset must be one of {list(PRESETS)}, got {a.preset!r}")
     if a.env not in ENVS:
         raise ValueError(f"--env must be one of {list(ENVS)}, got {a.env!r}")
     if a.dataset not in NAMED_DATASETS:
@@ -247,14 +258,10 @@ def check_args(a) -> None:
         v = getattr(a, name)
         if v is not None and v < low:
             raise ValueError(f"--{name} must be {'> 0' if low == 1 else f'>= {low}'}, got {v}")
-    path = os.path.join(RESULTS, cell_name(a) + ".json")
-    if os.path.exists(path):
-        with open(path) as f:
-            made = json.load(f)
-        differ = {k: made[k] for k in ("preset", "seeds", "episodes") if k in made and made[k] != getattr(a, k)}
-        if differ:
-            raise ValueError(f"{path} was made with " + " ".join(f"--{k} {v}" for k, v in differ.items())
-                             + ": give the same, or --tag NAME for a cell file of its own")
+    differ = {k: made[k] for k in ("preset", "seeds", "episodes") if k in made and made[k] != getattr(a, k)}
+    if differ:
+        raise ValueError(f"{path} was made with " + " ".join(f"--{k} {v}" for k, v in differ.items())
+                         + ": give the same, or --tag NAME for a cell file of its own")
 
 
 if __name__ == "__main__":

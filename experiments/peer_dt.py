@@ -23,8 +23,8 @@ LayerNorm epsilon. Torch threads: as many as the machine's cores (2 here), as XL
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import dataclasses
+import importlib.util
 import json
 import os
 import subprocess

@@ -28,6 +28,12 @@ wait_for() {  # while another process runs this pattern, wait (the run directori
 
 log() { echo "[$(date -u +%FT%TZ)] $*"; }
 
+# what the curves and front lanes run (the table lane's cells are table1.py's own), read by status too
+CURVE_CELLS=("walker medium" "hopper medium-replay" "halfcheetah medium-expert")
+CURVE_FLAGS="--model cpu --methods minsubdt,dt --steps 10000 --eval-every 1000 --episodes 30 --seeds 3 \
+--lr-schedule cosine --ema 0.999 --lr 1e-3 --tag rev2"
+FRONT_CELLS=("walker medium-replay" "halfcheetah medium-replay" "walker medium")
+
 table() {
     wait_for "experiments/table1.py run"
     for s in 0 1 2; do
@@ -42,12 +48,10 @@ table() {
 
 curves() {
     wait_for "experiments/curves.py run"
-    local c="--model cpu --methods minsubdt,dt --steps 10000 --eval-every 1000 --episodes 30 --seeds 3"
-    c="$c --lr-schedule cosine --ema 0.999 --lr 1e-3 --tag rev2"
-    for cell in "walker medium" "hopper medium-replay" "halfcheetah medium-expert"; do
+    for cell in "${CURVE_CELLS[@]}"; do
         set -- $cell
         log "curve $1 $2"
-        python experiments/curves.py run --env "$1" --dataset "$2" $c || { log "curve $1 $2 rc=$?"; return 1; }
+        python experiments/curves.py run --env "$1" --dataset "$2" $CURVE_FLAGS || { log "curve $1 $2 rc=$?"; return 1; }
         python experiments/curves.py report > /dev/null
         commit "Curves (issue 54, fixed DT): $1 $2; resume: bash experiments/queue.sh curves" \
             experiments/results/curves experiments/results/curves.md
@@ -59,7 +63,7 @@ front() {
     # issue 55 yields to issue 54's lanes: under setsid each lane is its own scheduler autogroup, in which
     # nice alone changes nothing, so the autogroup's own nice is raised where the kernel has one
     { echo 5 > /proc/self/autogroup; } 2> /dev/null || true
-    for cell in "walker medium-replay" "halfcheetah medium-replay" "walker medium"; do
+    for cell in "${FRONT_CELLS[@]}"; do
         set -- $cell
         log "front $1 $2"
         nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" || { log "front $1 $2 rc=$?"; return 1; }
@@ -70,23 +74,33 @@ front() {
 }
 
 status() {  # what each lane has left, from the committed result files
-    python - << 'PY'
-import json, os
+    local curves=() fronts=() cell
+    for cell in "${CURVE_CELLS[@]}"; do
+        set -- $cell
+        curves+=("$(python experiments/curves.py name --env "$1" --dataset "$2" $CURVE_FLAGS)")
+    done
+    for cell in "${FRONT_CELLS[@]}"; do fronts+=("${cell// /-}"); done
+    PYTHONPATH=experiments python - "${#curves[@]}" "${curves[@]}" "${fronts[@]}" << 'PY'
+import json, os, sys
+
+from table1_report import DATASETS, ENVS, METHODS  # the table's DT-family columns and cells
+
 R = "experiments/results"
-ENVS, DATASETS = ("halfcheetah", "hopper", "walker"), ("medium-expert", "medium", "medium-replay")
-METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")
+n = int(sys.argv[1])
+curves, fronts = sys.argv[2:2 + n], sys.argv[2 + n:]
 have = lambda e, d, s: all(os.path.exists(f"{R}/table1/study/{e}-{d}-{m}-s{s}.json") for m in METHODS)
 left = [f"{e}-{d} s{s}" for s in range(3) for e in ENVS for d in DATASETS if not have(e, d, s)]
-print(f"table: {27 - len(left)} of 27 seed-units landed; left: {', '.join(left) or 'none'}")
-for e, d in (("walker", "medium"), ("hopper", "medium-replay"), ("halfcheetah", "medium-expert")):
-    f = f"{R}/curves/{e}-{d}-cpu-k20-cosine-ema0.999-lr0.001-10000steps-rev2.json"
+total = 3 * len(ENVS) * len(DATASETS)
+print(f"table: {total - len(left)} of {total} seed-units landed; left: {', '.join(left) or 'none'}")
+for name in curves:
+    f = f"{R}/curves/{name}.json"
     state = "missing" if not os.path.exists(f) else "partial" if json.load(open(f)).get("partial") else "done"
-    print(f"curve {e} {d}: {state}")
-for cell in ("walker-medium-replay", "halfcheetah-medium-replay", "walker-medium"):
+    print(f"curve {name}: {state}")
+for cell in fronts:
     f = f"{R}/front/{cell}.json"
     r = json.load(open(f)) if os.path.exists(f) else {}
-    n = {m: len(v) for m, v in r.get("sweeps", {}).items()}
-    print(f"front {cell}: targets {n or 'none'}, scalar runs {sorted(r.get('scalar', {})) or 'none'}")
+    k = {m: len(v) for m, v in r.get("sweeps", {}).items()}
+    print(f"front {cell}: targets {k or 'none'}, scalar runs {sorted(r.get('scalar', {})) or 'none'}")
 PY
 }
 

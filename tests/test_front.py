@@ -59,7 +59,7 @@ def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
 
 
 @pytest.mark.parametrize("flags,says", [
-    (["--env", "nope"], "--env must be one of"), (["--dataset", "nope"], "--dataset must be one of"),
+    (["--env", "nope"], "--env must be one of"), (["--preset", "nope"], "--preset must be one of"), (["--dataset", "nope"], "--dataset must be one of"),
     (["--grid", "1"], "--grid must be >= 2"), (["--seeds", "0"], "--seeds must be > 0"),
     (["--episodes", "0"], "--episodes must be > 0"), (["--steps", "0"], "--steps must be > 0")])
 def test_bad_input_is_one_error_line_and_changes_nothing(front, tmp_path, monkeypatch, capsys, flags, says):

@@ -174,14 +174,14 @@ CHOICES = {"env": tuple(ENVS), "preset": tuple(PRESETS), "physics": PHYSICS,
 _POSITIVE = ("steps", "context_len", "embed_dim", "n_layers", "n_heads", "batch_size", "chunk_steps", "episode_length",
              "learning_rate", "beta", "warmup_steps", "cost_dim", "cost_steps", "cost_pairs", "seeds", "mlp_hidden",
              "mlp_layers", "eval_episodes_periodic", "critic_batch_size", "iql_beta", "td3bc_alpha", "cql_actions",
-             "dataset_transitions", "ac_hidden", "ac_layers", "actor_lr", "critic_lr", "rtg_scale", "alpha_max")
+             "grad_clip", "dataset_transitions", "ac_hidden", "ac_layers", "actor_lr", "critic_lr", "rtg_scale",
+             "alpha_max")
 RANGES = {
     **{name: ("open", 0, None, "> 0") for name in _POSITIVE},
     **{name: ("closed", 0, None, ">= 0") for name in ("eval_episodes", "weight_decay", "cql_alpha", "brac_alpha",
                                                         "seed", "dataset_seed")},
     "physics_threads": ("closed", 0, None, ">= 0 (0: all cores)"),
     "devices": ("closed", 0, None, ">= 0 (0: all local devices)"),
-    "grad_clip": ("open", 0, None, "> 0"),
     "dropout": ("half", 0, 1, "in [0, 1)"),
     "ema_decay": ("half", 0, 1, "in [0, 1) (0: off)"),
     "cost_label_noise": ("half", 0, 0.5, "in [0, 0.5)"),

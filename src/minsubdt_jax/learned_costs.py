@@ -222,7 +222,7 @@ def _fit(chunk, params, tx, cfg: LearnedCostConfig, returns, train, rng, verbose
     opt_state = tx.init(_trainable(params))
     done, losses = 0, []
     while done < cfg.steps:
-        n = min(cfg.steps, 250, cfg.steps - done)
+        n = min(250, cfg.steps - done)
         w, b = preference_pairs(returns[train], rng, n * cfg.pairs_per_step, cfg.label_noise)
         W, B = train[w].reshape(n, cfg.pairs_per_step), train[b].reshape(n, cfg.pairs_per_step)
         params, opt_state, ls = chunk(params, opt_state, jnp.asarray(W), jnp.asarray(B))
