@@ -78,6 +78,9 @@ class _Parsed(Exception):
     pass
 
 
+# runpy warns that a module it runs as __main__ was imported before (by this process's earlier commands); a
+# shell's fresh `python -m` does not
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules after import of package:RuntimeWarning")
 def test_every_readme_command_parses(monkeypatch):
     """Each command of ours in the README's shell blocks gets through its parser: the training CLI's through
     ``train.parse_args`` (with its checks), the others' argparse (stopped right after parsing: nothing runs)."""
