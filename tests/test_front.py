@@ -84,3 +84,14 @@ def test_other_settings_on_a_cell_with_results_are_an_error_not_a_rewrite(front,
     err = capsys.readouterr().err
     assert e.value.code == 2 and "--seeds 3" in err and "--tag" in err
     assert (tmp_path / "walker-medium-replay.json").read_text() == before
+
+
+def test_held_spearman_reads_each_row_of_the_grid(front):
+    """Metric 0's cost follows its target where the other target is 0.5 or 1 and runs against it where that is 0:
+    by hand, the rows' Spearman are -1, +1, +1, so the held measure is 1/3, while metric 1 (cost = its target)
+    is +1; a seed axis of two identical seeds changes nothing."""
+    t = np.array([[a, b] for a in (0.0, 0.5, 1.0) for b in (0.0, 0.5, 1.0)])
+    c0 = np.where(t[:, 1] == 0.0, 0.9 - 0.1 * t[:, 0], t[:, 0])
+    c = np.stack([c0, t[:, 1] + 0.01 * t[:, 0]], -1)[:, None].repeat(2, 1)  # [9, 2 seeds, 2]
+    assert front.held_spearman(t, c, 0) == pytest.approx(1 / 3)
+    assert front.held_spearman(t, c, 1) == pytest.approx(1.0)
