@@ -16,9 +16,9 @@ holds all of it is not run again, on any machine.
 
 ``report``: per cell, the hypervolume (moocore; reference point 1 in both costs, lower is better) of the non-dominated
 points of the demos, of the scalar runs' means, and of each vector method's target sweep (the means over seeds per
-target; and per seed, mean +- std), the Spearman per metric between the target and the achieved cost over the grid and within its rows (the other
-metric's target held),
-and a figure of the demos and the rollout means in the plane of the two costs.
+target; and per seed, mean +- std), the Spearman per metric between the target and the achieved cost over the grid
+and within its rows (the other metric's target held), and a figure of the demos and the rollout means in the plane
+of the two costs.
 """
 
 from __future__ import annotations
@@ -154,20 +154,18 @@ def hypervolume(points) -> float:
     return float(moocore.hypervolume(p, ref=[1.0, 1.0]))
 
 
-def held_spearman(t, c, k: int) -> float:
-    """Steering of metric ``k`` with the other metric's target held: the Spearman between ``k``'s target and its
-    achieved cost within each group of targets that share the other metric's, mean over the groups and seeds.
+def steering(t, c, k: int, held: bool = False) -> float:
+    """How metric ``k``'s target steers its achieved cost: the Spearman between the two over the whole grid, or with
+    ``held`` within each group of targets that share the other metric's target; mean over the groups and seeds.
     ``t [n, 2]`` the targets, ``c [n, seeds, 2]`` the achieved costs."""
     from minsubdt_jax.costs import spearman
 
-    other = t[:, 1 - k]
-    return float(np.mean([spearman(t[other == v, k], c[other == v, s, k])
-                          for v in np.unique(other) for s in range(c.shape[1])]))
+    group = t[:, 1 - k] if held else np.zeros(len(t))
+    return float(np.mean([spearman(t[group == v, k], c[group == v, s, k])
+                          for v in np.unique(group) for s in range(c.shape[1])]))
 
 
 def cell_report(r: dict) -> tuple[list[str], dict]:
-    from minsubdt_jax.costs import spearman
-
     rows, pts = [], {"demos": np.asarray(r["demo_costs"])}
     rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | – | – | – | – | – |")
     if r.get("scalar"):
@@ -182,8 +180,7 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
         t = np.array([[s["target"][m] for m in PAIR] for s in sweep])
         pts[method] = c.mean(1)
         hv_seed = np.array([hypervolume(c[:, s]) for s in range(c.shape[1])])
-        rho = [np.mean([spearman(t[:, k], c[:, s, k]) for s in range(c.shape[1])]) for k in range(2)]
-        held = [held_spearman(t, c, k) for k in range(2)]
+        rho, held = ([steering(t, c, k, h) for k in range(2)] for h in (False, True))
         rows.append(f"| `{method}` ({len(sweep)} targets) | {hypervolume(c.mean(1)):.3f} | {hv_seed.mean():.3f} ± "
                     f"{hv_seed.std():.3f} | {rho[0]:+.2f} | {rho[1]:+.2f} | {held[0]:+.2f} | {held[1]:+.2f} |")
     head = [f"### {r['cell']} ({r['preset']}, {r['seeds']} seeds x {r['episodes']} episodes per target)", "",
@@ -207,10 +204,10 @@ def report(a) -> None:
              "target grid, between the target in a metric and the achieved cost in it (mean over seeds; +1: the "
              "target steers that metric perfectly); *other target held*: the same within each row of the grid that "
              "shares the other metric's target, mean over those rows and the seeds (a metric that steers only where "
-             "the other's target allows it scores low over the whole grid and high here). The demos' points are single episodes; a method's point is the "
-             "mean of one target's rollouts (3 seeds x its episodes), so the demos' front holds the spread of single "
-             "episodes and the methods' fronts do not: compare the fronts' shapes in the figure as well as the "
-             "numbers.", ""]
+             "the other's target allows it scores low over the whole grid and high here). The demos' points are "
+             "single episodes; a method's point is the mean of one target's rollouts (3 seeds x its episodes), so the "
+             "demos' front holds the spread of single episodes and the methods' fronts do not: compare the fronts' "
+             "shapes in the figure as well as the numbers.", ""]
     fig, axes = plt.subplots(1, len(files), figsize=(6 * len(files), 5), squeeze=False)
     for ax, f in zip(axes[0], files):
         with open(os.path.join(RESULTS, f)) as fh:

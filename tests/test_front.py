@@ -59,7 +59,8 @@ def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
 
 
 @pytest.mark.parametrize("flags,says", [
-    (["--env", "nope"], "--env must be one of"), (["--preset", "nope"], "--preset must be one of"), (["--dataset", "nope"], "--dataset must be one of"),
+    (["--env", "nope"], "--env must be one of"), (["--preset", "nope"], "--preset must be one of"),
+    (["--dataset", "nope"], "--dataset must be one of"),
     (["--grid", "1"], "--grid must be >= 2"), (["--seeds", "0"], "--seeds must be > 0"),
     (["--episodes", "0"], "--episodes must be > 0"), (["--steps", "0"], "--steps must be > 0")])
 def test_bad_input_is_one_error_line_and_changes_nothing(front, tmp_path, monkeypatch, capsys, flags, says):
@@ -86,12 +87,12 @@ def test_other_settings_on_a_cell_with_results_are_an_error_not_a_rewrite(front,
     assert (tmp_path / "walker-medium-replay.json").read_text() == before
 
 
-def test_held_spearman_reads_each_row_of_the_grid(front):
+def test_steering_with_the_other_target_held_reads_each_row_of_the_grid(front):
     """Metric 0's cost follows its target where the other target is 0.5 or 1 and runs against it where that is 0:
     by hand, the rows' Spearman are -1, +1, +1, so the held measure is 1/3, while metric 1 (cost = its target)
     is +1; a seed axis of two identical seeds changes nothing."""
     t = np.array([[a, b] for a in (0.0, 0.5, 1.0) for b in (0.0, 0.5, 1.0)])
     c0 = np.where(t[:, 1] == 0.0, 0.9 - 0.1 * t[:, 0], t[:, 0])
     c = np.stack([c0, t[:, 1] + 0.01 * t[:, 0]], -1)[:, None].repeat(2, 1)  # [9, 2 seeds, 2]
-    assert front.held_spearman(t, c, 0) == pytest.approx(1 / 3)
-    assert front.held_spearman(t, c, 1) == pytest.approx(1.0)
+    assert front.steering(t, c, 0, held=True) == pytest.approx(1 / 3)
+    assert front.steering(t, c, 1, held=True) == pytest.approx(1.0)
