@@ -90,8 +90,9 @@ def complete(out: dict, a) -> bool:
     if not out.get("demo_costs"):  # (its preset, seeds and episodes are a's: check_args)
         return False
     demo, sweeps = np.asarray(out["demo_costs"]), out.get("sweeps", {})
-    return all(any(r["target"] == t for r in sweeps.get(m, [])) for m in VECTOR
-               for t in grid_targets(m, demo, out["beta"], a.grid)) and set(RUNS) - {"vec"} <= set(out.get("scalar", {}))
+    targets_done = all(any(r["target"] == t for r in sweeps.get(m, [])) for m in VECTOR
+                       for t in grid_targets(m, demo, out["beta"], a.grid))
+    return targets_done and set(RUNS) - {"vec"} <= set(out.get("scalar", {}))
 
 
 def cell_file(a) -> tuple[str, dict]:
@@ -166,7 +167,7 @@ def steering(t, c, k: int, held: bool = False) -> float:
 
 
 def cell_report(r: dict) -> tuple[list[str], dict]:
-    rows, pts = [], {"demos": np.asarray(r["demo_costs"])}
+    rows, notes, pts = [], [], {"demos": np.asarray(r["demo_costs"])}
     rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | – | – | – | – | – |")
     if r.get("scalar"):
         scal = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()])
@@ -183,11 +184,35 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
         rho, held = ([steering(t, c, k, h) for k in range(2)] for h in (False, True))
         rows.append(f"| `{method}` ({len(sweep)} targets) | {hypervolume(c.mean(1)):.3f} | {hv_seed.mean():.3f} ± "
                     f"{hv_seed.std():.3f} | {rho[0]:+.2f} | {rho[1]:+.2f} | {held[0]:+.2f} | {held[1]:+.2f} |")
+        notes.append(beyond_demos(method, c.mean(1), pts["demos"]))
     head = [f"### {r['cell']} ({r['preset']}, {r['seeds']} seeds x {r['episodes']} episodes per target)", "",
             f"`{r['command']}`", "",
             f"| points | hypervolume of the means | per seed | Spearman(target, cost) {PAIR[0]} | {PAIR[1]} | "
             f"other target held: {PAIR[0]} | {PAIR[1]} |", "|---|---|---|---|---|---|---|"]
-    return head + rows + [""], pts
+    return head + rows + ["", demos_trade_off(pts["demos"]), ""] + [n + "\n" for n in notes if n], pts
+
+
+def beyond_demos(method: str, means, d) -> str:
+    """The targets whose rollouts spend less in a metric than every demo, ``means [targets, 2]`` their mean costs
+    and ``d [n, 2]`` the demos': how many, and their mean cost in the other metric."""
+    out = []
+    for k in range(2):
+        below = means[:, k] < d[:, k].min()
+        if below.any():
+            out.append(f"{below.sum()} of {len(means)} targets below every demo's {PAIR[k]} cost ({d[:, k].min():.3f}; "
+                       f"theirs {means[below, k].mean():.3f}, at {PAIR[1 - k]} cost {means[below, 1 - k].mean():.3f})")
+    return f"`{method}`: " + "; ".join(out) + "." if out else ""
+
+
+def demos_trade_off(d) -> str:
+    """What the data offers the targets, ``d [n, 2]`` the demos' costs: how the two costs go together, and how
+    fast the tenth of the demos that spends least in the second metric is (what a frugal token asks for)."""
+    from minsubdt_jax.costs import spearman
+
+    tenth = np.argsort(d[:, 1], kind="stable")[:max(len(d) // 10, 1)]
+    return (f"The demos' two costs: Spearman {spearman(d[:, 0], d[:, 1]):+.2f}; the tenth that spends least "
+            f"{PAIR[1]} ({PAIR[1]} cost {d[tenth, 1].mean():.3f}) has {PAIR[0]} cost {d[tenth, 0].mean():.3f} "
+            f"(all demos {d[:, 0].min():.3f}-{d[:, 0].max():.3f}).")
 
 
 def report(a) -> None:
