@@ -13,8 +13,10 @@ import pytest
 
 # Most of this suite's time is XLA compiling on the CPU, so the tests compile for compile time, not run time:
 # LLVM's expensive passes skipped, XLA's classic CPU emitters (the MLIR fusion emitters are the default) and
-# LLVM at -O1. Measured with the suite on 2 cores (2026-12-06): 680 s with only the first flag, 376 s with all three
-# (hopper's MJX rollout compiles in 20 s instead of 33, a threefry reset in 0.4 s instead of 1.6). Results agree
+# LLVM at -O1. The suite on 2 cores (2026-12-06, one run each): 680 s with the first alone, 602 s adding the
+# classic emitters (MJX programs compile ~40 % faster, but threefry draws 2-5x slower), 537 s with --dist worksteal
+# and one MJX compile fewer (test_physics), 376 s adding -O1 (which undoes the threefry slowdown: a reset draw
+# compiles in 0.4 s, 1.6 s with the defaults). Results agree
 # with the default flags to float rounding, not bit for bit: a smoke run's losses are identical, its parameters
 # within 7e-5 and its returns within 4e-6 (experiments/compare_runs.py on two runs of `python -m
 # minsubdt_jax.train --preset smoke --env hopper`, one with XLA_FLAGS set to these).
