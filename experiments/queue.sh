@@ -51,7 +51,8 @@ curves() {
     for cell in "${CURVE_CELLS[@]}"; do
         set -- $cell
         log "curve $1 $2"
-        python experiments/curves.py run --env "$1" --dataset "$2" $CURVE_FLAGS || { log "curve $1 $2 rc=$?"; return 1; }
+        python experiments/curves.py run --env "$1" --dataset "$2" $CURVE_FLAGS \
+            || { log "curve $1 $2 rc=$?"; return 1; }
         python experiments/curves.py report > /dev/null
         commit "Curves (issue 54, fixed DT): $1 $2; resume: bash experiments/queue.sh curves" \
             experiments/results/curves experiments/results/curves.md
@@ -68,7 +69,8 @@ front() {
         log "front $1 $2"
         nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" || { log "front $1 $2 rc=$?"; return 1; }
         python experiments/front.py report > /dev/null
-        commit "Front (issue 55): $1 $2; resume: bash experiments/queue.sh front" \
+        # the report and the files of every cell as they stand (a cell under way too: it resumes from its file)
+        commit "Front (issue 55): $1 $2 done, all cells' files; resume: bash experiments/queue.sh front" \
             experiments/results/front experiments/results/front.md experiments/results/front.png
     done
 }
