@@ -189,7 +189,7 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
             f"`{r['command']}`", "",
             f"| points | hypervolume of the means | per seed | Spearman(target, cost) {PAIR[0]} | {PAIR[1]} | "
             f"other target held: {PAIR[0]} | {PAIR[1]} |", "|---|---|---|---|---|---|---|"]
-    return head + rows + ["", demos_trade_off(pts["demos"]), ""] + [n + "\n" for n in notes if n], pts
+    return head + rows + ["", demos_trade_off(pts["demos"]), ""] + [x for n in notes if n for x in (n, "")], pts
 
 
 def beyond_demos(method: str, means, d) -> str:

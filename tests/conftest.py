@@ -16,10 +16,10 @@ import pytest
 # LLVM at -O1. The suite on 2 cores (2026-12-06, one run each): 680 s with the first alone, 602 s adding the
 # classic emitters (MJX programs compile ~40 % faster, but threefry draws 2-5x slower), 537 s with --dist worksteal
 # and one MJX compile fewer (test_physics), 376 s adding -O1 (which undoes the threefry slowdown: a reset draw
-# compiles in 0.4 s, 1.6 s with the defaults). Results agree
-# with the default flags to float rounding, not bit for bit: a smoke run's losses are identical, its parameters
-# within 7e-5 and its returns within 4e-6 (experiments/compare_runs.py on two runs of `python -m
-# minsubdt_jax.train --preset smoke --env hopper`, one with XLA_FLAGS set to these).
+# compiles in 0.4 s, 1.6 s with the defaults). Results agree with the default flags to float rounding, not bit for
+# bit: a smoke run's losses are identical, its parameters within 7e-5 and its returns within 4e-6
+# (experiments/compare_runs.py on two runs of `python -m minsubdt_jax.train --preset smoke --env hopper`, one with
+# XLA_FLAGS set to these).
 TEST_XLA_FLAGS = ("--xla_cpu_multi_thread_eigen=true --xla_llvm_disable_expensive_passes=true "
                   "--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=1")
 os.environ.setdefault("XLA_FLAGS", TEST_XLA_FLAGS)
