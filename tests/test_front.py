@@ -1,5 +1,6 @@
 """experiments/front.py's bookkeeping: a cell whose results file is complete is not trained again (on a fresh
-machine its run directories are gone, and ``run`` would retrain ~3 h of models to recompute what is committed)."""
+machine its run directories are gone, and ``run`` would retrain ~3 h of models to recompute what is committed); and
+the lines of experiments/front_report.py, against hand computations."""
 
 import json
 
@@ -13,6 +14,12 @@ def front(tmp_path, monkeypatch):
 
     monkeypatch.setattr(front, "RESULTS", str(tmp_path))
     return front
+
+
+@pytest.fixture
+def front_report():
+    import front_report  # experiments/ (pyproject's pythonpath)
+    return front_report
 
 
 def cell_file(front, tmp_path, drop_target=False, drop_scalar=False):
@@ -87,36 +94,36 @@ def test_other_settings_on_a_cell_with_results_are_an_error_not_a_rewrite(front,
     assert (tmp_path / "walker-medium-replay.json").read_text() == before
 
 
-def test_steering_with_the_other_target_held_reads_each_row_of_the_grid(front):
+def test_steering_with_the_other_target_held_reads_each_row_of_the_grid(front_report):
     """Metric 0's cost follows its target where the other target is 0.5 or 1 and runs against it where that is 0:
     by hand, the rows' Spearman are -1, +1, +1, so the held measure is 1/3, while metric 1 (cost = its target)
     is +1; a seed axis of two identical seeds changes nothing."""
     t = np.array([[a, b] for a in (0.0, 0.5, 1.0) for b in (0.0, 0.5, 1.0)])
     c0 = np.where(t[:, 1] == 0.0, 0.9 - 0.1 * t[:, 0], t[:, 0])
     c = np.stack([c0, t[:, 1] + 0.01 * t[:, 0]], -1)[:, None].repeat(2, 1)  # [9, 2 seeds, 2]
-    assert front.steering(t, c, 0, held=True) == pytest.approx(1 / 3)
-    assert front.steering(t, c, 1, held=True) == pytest.approx(1.0)
+    assert front_report.steering(t, c, 0, held=True) == pytest.approx(1 / 3)
+    assert front_report.steering(t, c, 1, held=True) == pytest.approx(1.0)
 
 
-def test_the_demos_trade_off_line_is_a_hand_computation(front):
+def test_the_demos_trade_off_line_is_a_hand_computation(front_report):
     """20 demos: energy cost i / 20, speed cost 1 - i / 20 but demos 0 and 10 swapped, so the ranks are the reversal
     with two of them 10 apart: Spearman -(1 - 6 * 200 / (20 * 399)) = -0.85; the least-energy tenth is demos 0 and
     1, at energy 0.025 and speed (0.5 + 0.95) / 2."""
     energy = np.arange(20) / 20.0
     speed = 1.0 - energy
     speed[[0, 10]] = speed[[10, 0]]
-    line = front.demos_trade_off(np.stack([speed, energy], 1))
+    line = front_report.demos_trade_off(np.stack([speed, energy], 1))
     assert "Spearman -0.85" in line and "energy@lived cost 0.025" in line and "x_velocity cost 0.725" in line
     assert "(all demos 0.050-1.000)" in line
 
 
-def test_targets_beyond_the_demos_are_counted_by_hand(front):
+def test_targets_beyond_the_demos_are_counted_by_hand(front_report):
     """Demos spend energy 0.3-0.6 and speed 0.5-0.9; of three target means one spends less energy than any demo
     and one is faster than any: each is named with its cost in the other metric."""
     demos = np.array([[0.9, 0.3], [0.5, 0.6]])
     means = np.array([[0.95, 0.01], [0.4, 0.7], [0.7, 0.5]])
-    line = front.beyond_demos("m", means, demos)
+    line = front_report.beyond_demos("m", means, demos)
     assert line == ("`m`: 1 of 3 targets below every demo's x_velocity cost (0.500; theirs 0.400, at energy@lived "
                     "cost 0.700); 1 of 3 targets below every demo's energy@lived cost (0.300; theirs 0.010, at "
                     "x_velocity cost 0.950).")
-    assert front.beyond_demos("m", means[2:], demos) == ""
+    assert front_report.beyond_demos("m", means[2:], demos) == ""
