@@ -80,15 +80,24 @@ def means(per_seed: list[dict]) -> dict:
             "costs": [[e["costs_mean"][m] for m in PAIR] for e in per_seed]}
 
 
-def complete(out: dict, a) -> bool:
-    """Whether a cell's results file ``out`` holds all the work of ``a``: every target of the grid for both vector
-    methods, and every scalar run."""
-    if not out.get("demo_costs"):  # (its preset, seeds and episodes are a's: check_args)
+def sweeps_done(out: dict, a) -> bool:
+    """Whether a cell's results file ``out`` holds every target of ``a``'s grid for both vector methods (its preset,
+    seeds and episodes are a's: check_args)."""
+    if not out.get("demo_costs"):
         return False
     demo, sweeps = np.asarray(out["demo_costs"]), out.get("sweeps", {})
-    targets_done = all(any(r["target"] == t for r in sweeps.get(m, [])) for m in VECTOR
-                       for t in grid_targets(m, demo, out["beta"], a.grid))
-    return targets_done and set(RUNS) - {"vec"} <= set(out.get("scalar", {}))
+    return all(any(r["target"] == t for r in sweeps.get(m, [])) for m in VECTOR
+               for t in grid_targets(m, demo, out["beta"], a.grid))
+
+
+def scalar_missing(out: dict) -> list[str]:
+    """The scalar runs a cell's results file ``out`` does not hold yet, in ``RUNS``' order."""
+    return [n for n in RUNS if n != "vec" and n not in out.get("scalar", {})]
+
+
+def complete(out: dict, a) -> bool:
+    """Whether a cell's results file ``out`` holds all the work of ``a``: every target, every scalar run."""
+    return sweeps_done(out, a) and not scalar_missing(out)
 
 
 def cell_file(a) -> tuple[str, dict]:
@@ -102,41 +111,49 @@ def cell_file(a) -> tuple[str, dict]:
 
 def run(a, path: str, out: dict) -> None:
     """Trains what the cell ``a`` lacks and adds each finished target and scalar run to ``out`` (what its results
-    file at ``path`` holds so far), saving it after each."""
+    file at ``path`` holds so far), saving it after each. What the file holds is not trained again: its run
+    directories may be on another machine."""
     from minsubdt_jax.atomic import write_atomic
-    from minsubdt_jax.evaluate import evaluate_run, load_run
 
-    if complete(out, a):  # its run directories may be on another machine: nothing to train again
+    if complete(out, a):
         print(f"{path}: complete (every target and scalar run); nothing to do", flush=True)
         return
-    dirs = train_runs(a, ["vec"])  # the vector methods and their sweeps first, the scalar runs after
     os.makedirs(RESULTS, exist_ok=True)
-    loaded = load_run(dirs["vec"])
+
+    def save():
+        write_atomic(path, json.dumps(out, indent=1))
+
+    if not sweeps_done(out, a):  # the vector methods and their sweeps first, the scalar runs after
+        sweep(a, out, save)
+    for name in scalar_missing(out):
+        res_dir = train_runs(a, [name])[name]
+        with open(os.path.join(res_dir, "results.json")) as f:
+            out.setdefault("scalar", {})[name] = means(json.load(f)["eval_per_seed"])
+        save()
+
+
+def sweep(a, out: dict, save) -> None:
+    """Trains (or resumes) the vector methods of cell ``a`` and rolls out each target of the grid that ``out`` lacks,
+    calling ``save`` after each."""
+    from minsubdt_jax.evaluate import evaluate_run, load_run
+
+    vec = train_runs(a, ["vec"])["vec"]
+    loaded = load_run(vec)
     demo = loaded.per_model[0].costs
     out.update({"cell": cell_name(a), "env": a.env, "dataset": a.dataset, "preset": a.preset, "seeds": a.seeds,
                 "episodes": a.episodes, "beta": loaded.cfg.beta, "metrics": list(PAIR),
                 "dataset_sha256": loaded.per_model[0].source.sha256, "demo_costs": demo.tolist(),
                 "command": "python experiments/front.py run " + " ".join(sys.argv[2:])})
-
-    def save():
-        write_atomic(path, json.dumps(out, indent=1))
-
     for method in VECTOR:
         done = out.setdefault("sweeps", {}).setdefault(method, [])
         for target in grid_targets(method, demo, loaded.cfg.beta, a.grid):
             if any(r["target"] == target for r in done):
                 continue
-            ev = evaluate_run(dirs["vec"], target, a.episodes, method, run=loaded)
+            ev = evaluate_run(vec, target, a.episodes, method, run=loaded)
             done.append({"target": target, **means(ev["eval_per_seed"])})
             c = np.mean(done[-1]["costs"], 0)
             print(f"{method} {target}: costs {c[0]:.3f}, {c[1]:.3f}; normalised "
                   f"{np.mean(done[-1]['normalized']):.1f}", flush=True)
-            save()
-    for name in RUNS:
-        if name != "vec":
-            res_dir = train_runs(a, [name])[name]
-            with open(os.path.join(res_dir, "results.json")) as f:
-                out.setdefault("scalar", {})[name] = means(json.load(f)["eval_per_seed"])
             save()
 
 

@@ -65,6 +65,31 @@ def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
         front.main(ARGS)
 
 
+def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_path, monkeypatch):
+    """On a fresh machine the vector run's directory is gone; a cell whose sweeps are all in its file must not train
+    the vector methods again (hours) to reach the scalar run it lacks: only that run trains, and it lands in the file
+    beside the sweeps, which stay as they were."""
+    cell_file(front, tmp_path, drop_scalar=True)
+    path = tmp_path / "walker-medium-replay.json"
+    before = json.loads(path.read_text())
+    trained = []
+
+    def train_runs(a, names):
+        trained.extend(names)
+        out = tmp_path / "runs" / names[0]
+        out.mkdir(parents=True)
+        (out / "results.json").write_text(json.dumps({"eval_per_seed": [
+            {"normalized_score_mean": 7.0, "costs_mean": {"x_velocity": 0.25, "energy@lived": 0.75}}] * 3}))
+        return {names[0]: str(out)}
+
+    monkeypatch.setattr(front, "train_runs", train_runs)
+    front.main(ARGS)
+    after = json.loads(path.read_text())
+    assert trained == ["minsubdt-both"]
+    assert after["sweeps"] == before["sweeps"] and after["demo_costs"] == before["demo_costs"]
+    assert after["scalar"]["minsubdt-both"] == {"normalized": [7.0] * 3, "costs": [[0.25, 0.75]] * 3}
+
+
 @pytest.mark.parametrize("flags,says", [
     (["--env", "nope"], "--env must be one of"), (["--preset", "nope"], "--preset must be one of"),
     (["--dataset", "nope"], "--dataset must be one of"),
