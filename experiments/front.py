@@ -128,7 +128,8 @@ def run(a, path: str, out: dict) -> None:
     for name in scalar_missing(out):
         res_dir = train_runs(a, [name])[name]
         with open(os.path.join(res_dir, "results.json")) as f:
-            out.setdefault("scalar", {})[name] = means(json.load(f)["eval_per_seed"])
+            res = json.load(f)  # its recording's hash: another machine may record another file of the recipe
+        out.setdefault("scalar", {})[name] = {**means(res["eval_per_seed"]), "dataset_sha256": res["dataset"]["sha256"]}
         save()
 
 

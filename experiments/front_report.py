@@ -39,7 +39,8 @@ def steering(t, c, k: int, held: bool = False) -> float:
 
 def cell_report(r: dict) -> tuple[list[str], dict]:
     rows, notes, pts = [], [], {"demos": np.asarray(r["demo_costs"])}
-    rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | – | – | – | – | – |")
+    rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | "
+                "– | – | – | – | – |")
     if r.get("scalar"):
         scal = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()])
         pts["scalar MinSubDT"] = scal
@@ -60,7 +61,18 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
             f"`{r['command']}`", "",
             f"| points | hypervolume of the means | per seed | Spearman(target, cost) {PAIR[0]} | {PAIR[1]} | "
             f"other target held: {PAIR[0]} | {PAIR[1]} |", "|---|---|---|---|---|---|---|"]
+    notes.append(recordings(r))
     return head + rows + ["", demos_trade_off(pts["demos"]), ""] + [x for n in notes if n for x in (n, "")], pts
+
+
+def recordings(r: dict) -> str:
+    """The scalar runs trained on another recording of the cell's recipe than the sweeps' (a machine of another
+    instruction set records another file: docs/FIDELITY.md), by name and content hash; ``""`` if none."""
+    other = {k: v["dataset_sha256"] for k, v in r.get("scalar", {}).items()
+             if v.get("dataset_sha256", r.get("dataset_sha256")) != r.get("dataset_sha256")}
+    return "" if not other else (
+        "Trained on another recording of the same recipe (the target sweeps': " + r["dataset_sha256"][:12]
+        + "): " + ", ".join(f"`{k}` ({v[:12]})" for k, v in other.items()) + ".")
 
 
 def beyond_demos(method: str, means, d) -> str:

@@ -78,7 +78,7 @@ def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_
         trained.extend(names)
         out = tmp_path / "runs" / names[0]
         out.mkdir(parents=True)
-        (out / "results.json").write_text(json.dumps({"eval_per_seed": [
+        (out / "results.json").write_text(json.dumps({"dataset": {"sha256": "bb" * 32}, "eval_per_seed": [
             {"normalized_score_mean": 7.0, "costs_mean": {"x_velocity": 0.25, "energy@lived": 0.75}}] * 3}))
         return {names[0]: str(out)}
 
@@ -87,7 +87,19 @@ def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_
     after = json.loads(path.read_text())
     assert trained == ["minsubdt-both"]
     assert after["sweeps"] == before["sweeps"] and after["demo_costs"] == before["demo_costs"]
-    assert after["scalar"]["minsubdt-both"] == {"normalized": [7.0] * 3, "costs": [[0.25, 0.75]] * 3}
+    assert after["scalar"]["minsubdt-both"] == {"normalized": [7.0] * 3, "costs": [[0.25, 0.75]] * 3,
+                                                "dataset_sha256": "bb" * 32}
+
+
+def test_scalar_runs_on_another_recording_are_named(front_report):
+    """A scalar run whose recording's hash is not the sweeps' is named with its hash; one without a hash (recorded
+    before the field) or with the sweeps' is not."""
+    r = {"dataset_sha256": "aa" * 32, "scalar": {"x": {"dataset_sha256": "aa" * 32}, "y": {},
+                                                  "z": {"dataset_sha256": "cc" * 32}}}
+    assert front_report.recordings(r) == ("Trained on another recording of the same recipe (the target sweeps': "
+                                          "aaaaaaaaaaaa): `z` (cccccccccccc).")
+    del r["scalar"]["z"]
+    assert front_report.recordings(r) == ""
 
 
 @pytest.mark.parametrize("flags,says", [

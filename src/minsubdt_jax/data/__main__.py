@@ -44,7 +44,8 @@ def main(argv=None) -> int:
     p.add_argument("--horizon", type=int, default=1000, help="the episodes' length limit: an episode that has not "
                    "fallen by then ends in a time-out (D4RL's 1000)")
     p.add_argument("--seed", type=int, default=0, help="the recording's seed (resets and the behaviour policy's "
-                   "sampled actions); a recording is the same for the same seed and physics")
+                   "sampled actions); a recording is the same for the same seed and physics on one kind of CPU "
+                   "(another instruction set may record another file: docs/FIDELITY.md)")
     p.add_argument("--physics", choices=PHYSICS, default="auto",
                    help="who steps the recording: C MuJoCo (mujoco), MJX (mjx), or auto (C MuJoCo on a CPU)")
     p.add_argument("--force", action="store_true", help="record again even if the cache holds the file")
