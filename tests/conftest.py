@@ -55,6 +55,14 @@ def small_dataset_path(small_dataset, tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def table1():
+    """experiments/table1.py, the sweep script (tests/test_table1*.py)."""
+    import table1  # experiments/ (pyproject's pythonpath)
+
+    return table1
+
+
+@pytest.fixture(scope="session")
 def cli_env(tmp_path_factory):
     """Environment for CLI subprocesses: a private dataset cache (the session's XLA cache is inherited)."""
     env = dict(os.environ)
