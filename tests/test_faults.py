@@ -1,5 +1,6 @@
-"""Faults and odd input (issue 56): a second writer into a run directory, non-finite numbers, Ctrl-C, file modes,
-a plot into a missing folder. Each case is one clear line and leaves nothing half-written."""
+"""Faults (issue 56): a second writer into a run directory, Ctrl-C, a checkpoint cut, file modes, a cache that
+cannot be written, a killed recording, a failed write. Each case is one clear line and leaves nothing
+half-written; bad input is tests/test_bad_input.py's."""
 
 import json
 import os
@@ -8,14 +9,7 @@ import threading
 
 import pytest
 
-SMOKE = ["--preset", "smoke", "--env", "hopper", "--episode-length", "60"]
-
-
-def _main(args, capsys):
-    from minsubdt_jax.train import main
-
-    code = main(args)
-    return code, capsys.readouterr().err
+from cli_helpers import SMOKE, train_main
 
 
 def test_a_second_writer_into_the_same_out_is_one_error_and_writes_nothing(tmp_path, small_dataset_path, capsys):
@@ -28,7 +22,7 @@ def test_a_second_writer_into_the_same_out_is_one_error_and_writes_nothing(tmp_p
     holder = RunLock()
     holder.acquire(str(out))  # as a running training holds it (its own open of the file: the lock conflicts)
     try:
-        code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], capsys)
+        code, err = train_main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], capsys)
     finally:
         holder.release()
     assert code == 2 and f"is in use by process {os.getpid()}" in err and err.strip().count("\n") == 0
@@ -36,16 +30,6 @@ def test_a_second_writer_into_the_same_out_is_one_error_and_writes_nothing(tmp_p
     again = RunLock()
     again.acquire(str(out))
     again.release()
-
-
-@pytest.mark.parametrize("flag,value", [("--target-return", "nan"), ("--learning-rate", "inf"),
-                                        ("--beta=-inf", None), ("--rtg-scale", "nan")])
-def test_a_non_finite_number_is_one_error_before_anything_is_written(tmp_path, capsys, flag, value):
-    """`--target-return nan` used to run and write NaN scores and a bare NaN into results.json: every float flag must
-    be finite (one error line, exit 2, no run directory)."""
-    out = tmp_path / "never"
-    code, err = _main([*SMOKE, flag, *([value] if value else []), "--out", str(out)], capsys)
-    assert code == 2 and f"{flag.split('=')[0]} must be a finite number" in err and not out.exists()
 
 
 def test_results_are_always_valid_json():
@@ -129,17 +113,6 @@ def test_a_checkpoint_is_on_disk_when_its_save_returns(tmp_path):
     assert ocp.CheckpointManager(str(tmp_path / "c")).latest_step() == 3
 
 
-def test_plot_into_a_missing_folder_is_one_error(tmp_path, capsys):
-    from minsubdt_jax.plot import main as plot_main
-
-    (tmp_path / "run").mkdir()
-    (tmp_path / "run" / "metrics.jsonl").write_text(json.dumps({"step": 1, "loss": 1.0, "loss_per_seed": [1.0]}) + "\n")
-    assert plot_main([str(tmp_path / "run"), "--out", str(tmp_path / "missing" / "x.png")]) == 2
-    err = capsys.readouterr().err
-    assert "the folder" in err and "does not exist" in err and err.strip().count("\n") == 0
-    assert not (tmp_path / "missing").exists()
-
-
 def _cached(small_dataset, monkeypatch, tmp_path):
     """A cached 'medium' recording of the small dataset's shape (as resolve_dataset names its cache files)."""
     from minsubdt_jax.data import save_d4rl
@@ -190,76 +163,6 @@ def test_a_killed_recordings_temporary_file_is_removed_when_no_one_records(small
     assert not os.path.exists(orphan) and os.path.exists(path)
 
 
-def test_a_malformed_minari_id_is_one_error_and_leaves_no_folder(small_dataset_path, monkeypatch, tmp_path, capsys):
-    """`--export-minari "bad id with spaces"` left a folder under the Minari datasets path that broke every later
-    `minari:` load until removed by hand. A malformed id (or one without -v<version>) is one error line before
-    anything is recorded or written, and Minari's own listing still works."""
-    import minari
-
-    from minsubdt_jax.data.__main__ import main as data_main
-
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
-    for bad in ("bad id with spaces", "minsubdt/hopper-medium"):
-        assert data_main(["--env", "hopper", "--dataset", small_dataset_path, "--export-minari", bad]) == 2
-        err = capsys.readouterr().err
-        assert "is not a Minari dataset id" in err and err.strip().count("\n") == 0
-    assert not (tmp_path / "minari").exists() or not os.listdir(tmp_path / "minari")
-    assert minari.list_local_datasets() == {}
-
-
-def test_a_configuration_that_cannot_fit_in_memory_is_one_error(tmp_path, small_dataset_path, capsys):
-    """A context far beyond the horizon, or a huge batch, was an out-of-memory kill without a message or a 42-line
-    XLA traceback. A context longer than an episode is refused, and a train step whose estimated memory exceeds
-    what the device has is one error line naming the flags, before anything is written."""
-    out = tmp_path / "never"
-    code, err = _main([*SMOKE, "--context-len", "80", "--out", str(out)], capsys)
-    assert code == 2 and "--context-len 80 is longer than an episode" in err and not out.exists()
-    for flags in (["--context-len", "5000", "--episode-length", "5000"], ["--batch-size", "100000000"]):
-        code, err = _main([*SMOKE, "--dataset", small_dataset_path, *flags, "--out", str(out)], capsys)
-        assert code == 2 and "GiB available: lower --context-len or --batch-size" in err, err
-        assert err.strip().count("\n") == 0 and not out.exists()
-
-
-def test_the_memory_estimate_is_above_xlas_own_and_within_2x():
-    """The estimate the check uses against XLA's own temporary memory for one compiled DT step (smoke preset, and
-    with 4x the context): never below it, at most 2x above."""
-    import dataclasses
-
-    import jax
-    import numpy as np
-
-    from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_step
-    from minsubdt_jax.agents.dt.agent import make_dt_agent, train_step_bytes
-    from minsubdt_jax.config import PRESETS
-    from minsubdt_jax.data import Trajectories, sampler_data
-
-    n, T, obs, act = 4, 40, 11, 3
-    ds = Trajectories(np.zeros((n, T, obs), np.float32), np.zeros((n, T, act), np.float32), np.zeros((n, T), np.float32),
-                      np.full(n, T, np.int32), np.zeros(n, bool))
-    data = sampler_data(ds, np.zeros((n, T)), np.zeros(obs, np.float32), np.ones(obs, np.float32))
-    for over in ({}, {"context_len": 20, "batch_size": 32}):
-        cfg = dataclasses.replace(PRESETS["smoke"], **over)
-        agent, tx = make_dt_agent(cfg, obs, act, T), make_optimizer(cfg)
-        xla = jax.jit(make_train_step(agent, tx, cfg.batch_size)).lower(
-            init_state(agent, tx, jax.random.PRNGKey(0)), data).compile().memory_analysis().temp_size_in_bytes
-        assert xla <= train_step_bytes(cfg, 1) <= 2 * xla, (over, xla, train_step_bytes(cfg, 1))
-
-
-def test_actions_outside_the_bounds_are_refused_with_one_line(small_dataset, tmp_path, capsys):
-    """A dataset whose actions lie outside [-1, 1] (x3) was trained on silently. The envs clip every action to
-    [-1, 1], so such data cannot come from them: one error line, nothing written."""
-    import dataclasses
-
-    from minsubdt_jax.data import save_d4rl
-
-    path = str(tmp_path / "x3.hdf5")
-    save_d4rl(dataclasses.replace(small_dataset, actions=3 * small_dataset.actions), path)
-    out = tmp_path / "never"
-    code, err = _main([*SMOKE, "--dataset", path, "--out", str(out)], capsys)
-    assert code == 2 and "outside hopper's action bounds [-1, 1]" in err and err.strip().count("\n") == 0
-    assert not out.exists()
-
-
 def test_a_resume_never_changes_the_cost_metrics_a_run_trains_on(tmp_path, small_dataset_path, capsys):
     """A run trained through the library on a CostMetric of one's own, resumed from the CLI, went on silently with
     the default metrics (config.json said costs: null). The run records its metrics; a resume on others is one
@@ -277,48 +180,12 @@ def test_a_resume_never_changes_the_cost_metrics_a_run_trains_on(tmp_path, small
     train(cfg, verbose=False, metrics=["x_velocity", lean])
     saved = json.loads((out / "cost_metrics.json").read_text())
     assert [m["name"] for m in saved] == ["x_velocity", "lean"]
-    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0",
+    code, err = train_main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0",
                        "--steps", "20", "--resume"], capsys)
     assert code == 2 and "trained on the cost metrics x_velocity, lean" in err and err.strip().count("\n") == 0
     assert sorted(d for d in os.listdir(out / "checkpoints") if d.isdigit()) == ["10"]  # nothing trained
     res = train(dataclasses.replace(cfg, steps=20), resume=True, verbose=False, metrics=["x_velocity", lean])
     assert res["train"]["steps"] == 20 and [m["name"] for m in res["dataset"]["cost_metrics"]] == ["x_velocity", "lean"]
-
-
-def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(capsys, tmp_path, monkeypatch):
-    """What a newcomer reads: `train --help` names every method and says where evaluation runs (C MuJoCo on a CPU,
-    not only MJX); `train --costs list` prints the metrics (it was an error); `data --help` explains --env, --seed
-    and --horizon; TensorBoard tags every per-model list `<metric>/<method>-s<seed>` (the loss was tagged
-    `loss_per_seed/0`); the learning curve's figure is titled with env, dataset and method."""
-    from minsubdt_jax import loggers, rundir
-    from minsubdt_jax.train import parse_args
-    from minsubdt_jax.data.__main__ import main as data_main
-    from minsubdt_jax.methods import METHODS
-
-    with pytest.raises(SystemExit):
-        parse_args(["--help"])
-    text = " ".join(capsys.readouterr().out.split()).replace("- ", "-")  # argparse wraps lines after a hyphen
-    assert all(m in text for m in METHODS) and "C MuJoCo on a CPU" in text
-    with pytest.raises(SystemExit) as e:
-        parse_args(["--env", "hopper", "--costs", "list"])
-    assert e.value.code == 0 and "x_velocity:" in capsys.readouterr().out
-    with pytest.raises(SystemExit):
-        data_main(["--help"])
-    help_text = " ".join(capsys.readouterr().out.split())
-    for flag in ("--env {hopper,walker,halfcheetah} the environment", "--seed SEED the recording's seed",
-                 "--horizon HORIZON the episodes' length limit"):
-        assert flag in help_text, flag
-    tags = loggers.scalars({"step": 10, "loss_per_seed": [0.5, 0.7]}, ["minsubdt-s0", "dt-s0"])
-    assert set(tags) == {"loss_per_seed/minsubdt-s0", "loss_per_seed/dt-s0", "loss_per_seed/mean"}
-    ev = loggers.scalars({"step": 10, "eval_return": [1.0, 2.0], "eval_method": ["minsubdt", "dt"],
-                          "eval_seed": [0, 0]}, ["minsubdt-s0", "dt-s0"])
-    assert set(ev) == {"eval_return/minsubdt-s0", "eval_return/dt-s0", "eval_return/mean"}
-    (tmp_path / "metrics.jsonl").write_text(json.dumps({"step": 10, "loss": 0.5, "loss_per_seed": [0.5]}) + "\n")
-    titles = []
-    import matplotlib.figure
-    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *_a, **_k: titles.append(fig._suptitle))
-    rundir.plot_learning_curve(str(tmp_path / "metrics.jsonl"), str(tmp_path / "c.png"), "hopper medium: dt (1 seed)")
-    assert titles[0].get_text() == "hopper medium: dt (1 seed)"
 
 
 def test_a_failed_write_leaves_no_file_and_is_one_line(tmp_path, monkeypatch, capsys):
@@ -373,34 +240,3 @@ def test_the_progress_bar_moves_within_a_chunk_and_the_pieces_train_the_same_ste
     assert np.array_equal(np.asarray(joined), np.asarray(losses))
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(state)):
         assert np.array_equal(np.asarray(a), np.asarray(b))
-
-
-def test_the_peer_check_without_its_venv_is_one_line_saying_how(capsys):
-    """experiments/peer_dt.py needs torch and d3rlpy, which are not ours: without them, one error line with the
-    README's command that makes their venv (it was an ImportError traceback)."""
-    import importlib.util
-
-    import peer_dt  # experiments/ (pyproject's pythonpath)
-
-    if importlib.util.find_spec("d3rlpy") is not None:
-        pytest.skip("d3rlpy is installed here")
-    with pytest.raises(SystemExit) as e:
-        peer_dt.main(["run", "--env", "hopper"])
-    err = capsys.readouterr().err
-    assert e.value.code == 2 and "python3 -m venv .venv-peer" in err and "Traceback" not in err, err
-
-
-@pytest.mark.parametrize("script,argv,says", [
-    ("cost_features", ["--envs", "nope"], "invalid choice: 'nope'"),
-    ("cost_features", ["--datasets", "nope"], "invalid choice: 'nope'"),
-    ("datasets", ["--envs", "nope"], "invalid choice: 'nope'"),
-    ("probe_targets", ["/nonexistent-run"], "not a run directory"),
-    ("compare_runs", ["/nonexistent-a", "/nonexistent-b"], "not a run directory")])
-def test_an_experiment_scripts_bad_input_is_one_error_line(script, argv, says, capsys):
-    """A newcomer's pass over experiments/ (2026-12-06): these were tracebacks."""
-    import importlib
-
-    with pytest.raises(SystemExit) as e:
-        importlib.import_module(script).main(argv)
-    err = capsys.readouterr().err
-    assert e.value.code == 2 and says in err and "Traceback" not in err, err

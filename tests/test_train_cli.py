@@ -7,10 +7,10 @@ import subprocess
 import sys
 
 import numpy as np
-import orbax.checkpoint as ocp
 import pytest
 
-SMOKE = ["--preset", "smoke", "--env", "hopper", "--episode-length", "60"]
+from cli_helpers import SMOKE, checkpoint_params, leaves, train_main
+
 # the full run's chosen metrics, parameter average and TensorBoard logger
 CHOSEN = ["--costs", "x_velocity,energy,fall", "--ema-decay", "0.9", "--logger", "tensorboard"]
 
@@ -21,12 +21,6 @@ def _run(args, env, check=True):
     if check and p.returncode != 0:
         raise AssertionError(f"exit {p.returncode}\nstdout:\n{p.stdout[-3000:]}\nstderr:\n{p.stderr[-3000:]}")
     return p
-
-
-def _params(run_dir):
-    mngr = ocp.CheckpointManager(os.path.abspath(os.path.join(run_dir, "checkpoints")))
-    restored = mngr.restore(mngr.latest_step())
-    return mngr.latest_step(), restored
 
 
 @pytest.fixture(scope="module")
@@ -80,14 +74,14 @@ def test_resume_reaches_the_same_parameters(full_run, tmp_path, small_dataset_pa
     evaluated at step 10: evaluation does not touch training)."""
     out = tmp_path / "resumed"
     common = [*SMOKE, *CHOSEN, "--dataset", small_dataset_path, "--out", str(out), "--eval-episodes", "0"]
-    assert _main([*common, "--steps", "10"], capsys)[0] == 0
-    assert _params(out)[0] == 10
-    code, _ = _main([*common, "--steps", "20", "--resume"], capsys)
+    assert train_main([*common, "--steps", "10"], capsys)[0] == 0
+    assert checkpoint_params(out)[0] == 10
+    code, _ = train_main([*common, "--steps", "20", "--resume"], capsys)
     assert code == 0
-    step_a, a = _params(full_run[0])
-    step_b, b = _params(out)
+    step_a, a = checkpoint_params(full_run[0])
+    step_b, b = checkpoint_params(out)
     assert step_a == step_b == 20
-    leaves_a, leaves_b = [np.asarray(x) for x in _leaves(a)], [np.asarray(x) for x in _leaves(b)]
+    leaves_a, leaves_b = [np.asarray(x) for x in leaves(a)], [np.asarray(x) for x in leaves(b)]
     assert len(leaves_a) == len(leaves_b) > 5
     for x, y in zip(leaves_a, leaves_b):
         np.testing.assert_array_equal(x, y)
@@ -114,39 +108,11 @@ def _tensorboard_scalars(folder) -> dict:
     return out
 
 
-def _leaves(tree):
-    import jax
-
-    return jax.tree.leaves(tree)
-
-
-def test_bad_input_is_one_clear_error_and_writes_nothing(tmp_path, capsys):
-    out = tmp_path / "never"
-    code, err = _main([*SMOKE, "--dataset", str(tmp_path / "missing.hdf5"), "--out", str(out)], capsys)
-    assert code == 2 and "error: no dataset file at" in err and "Traceback" not in err
-    assert not out.exists()
-    code, err = _main([*SMOKE, "--steps", "0", "--out", str(out)], capsys)
-    assert code == 2 and "--steps must be > 0" in err and not out.exists()
-    code, err = _main([*SMOKE, "--logger", "tensorbord", "--out", str(out)], capsys)
-    assert code == 2 and "--logger must be one or several" in err and not out.exists()
-    code, err = _main([*SMOKE, "--costs", "x_velocity,speed", "--out", str(out)], capsys)
-    assert code == 2 and err.strip().count("\n") == 0 and "unknown cost metric 'speed'" in err and not out.exists()
-    code, err = _main([*SMOKE, "--returns", "true", "--method", "bc", "--out", str(out)], capsys)
-    assert code == 2 and "--returns true means --method dt, not bc" in err and not out.exists()
-    with pytest.raises(SystemExit) as e:  # argparse: usage and exit 2
-        _main(["--env", "ant"], capsys)
-    assert e.value.code == 2 and "invalid choice: 'ant'" in capsys.readouterr().err
-    for flag, bad in (("--physics", "bullet"), ("--dynamics", "gym")):
-        with pytest.raises(SystemExit) as e:
-            _main([*SMOKE, flag, bad, "--out", str(out)], capsys)
-        assert e.value.code == 2 and f"invalid choice: '{bad}'" in capsys.readouterr().err and not out.exists()
-
-
 def test_existing_run_needs_resume(full_run, small_dataset_path, capsys):
     out, _ = full_run
-    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], capsys)
+    code, err = train_main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out)], capsys)
     assert code == 2 and "pass --resume" in err
-    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--resume", "--batch-size", "4"],
+    code, err = train_main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--resume", "--batch-size", "4"],
                       capsys)
     assert code == 2 and "config differs" in err and "batch_size" in err
 
@@ -156,23 +122,15 @@ def test_named_dataset_is_recorded_on_first_use_then_reused(tmp_path, capsys, mo
     the default 1000, so the recording program is test_generate's.)"""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     args = [*SMOKE, "--episode-length", "1000", "--dataset", "medium", "--steps", "10", "--eval-episodes", "0"]
-    code, out = _main([*args, "--out", str(tmp_path / "a")], capsys, "out")
+    code, out = train_main([*args, "--out", str(tmp_path / "a")], capsys, "out")
     assert code == 0 and "hopper/medium:" in out and "transitions" in out  # the recording summary
     res = json.loads((tmp_path / "a" / "results.json").read_text())["dataset"]
     assert res["path"].startswith(str(tmp_path / "xdg")) and "hopper-medium-t2000-h1000-s0" in res["path"]
     assert res["transitions"] >= 2000 and os.path.exists(res["path"])
-    code, out = _main([*args, "--out", str(tmp_path / "b")], capsys, "out")
+    code, out = train_main([*args, "--out", str(tmp_path / "b")], capsys, "out")
     assert code == 0 and "hopper/medium:" not in out  # loaded from the cache, not recorded again
     assert json.loads((tmp_path / "b" / "results.json").read_text())["dataset"] == res
     assert json.loads((tmp_path / "b" / "dataset.json").read_text())["sha256"] == res["sha256"]
-
-
-def _main(args, capsys, stream="err"):
-    """The CLI in this process (no interpreter start-up): (exit code, its stderr, or stdout with stream="out")."""
-    from minsubdt_jax.train import main
-
-    code = main(args)
-    return code, getattr(capsys.readouterr(), stream)
 
 
 def test_data_that_cannot_be_trained_on_stops_before_anything_is_written(tmp_path, small_dataset_path, capsys):
@@ -180,7 +138,7 @@ def test_data_that_cannot_be_trained_on_stops_before_anything_is_written(tmp_pat
     import h5py
 
     out = tmp_path / "never"
-    code, err = _main([*SMOKE, "--env", "walker", "--dataset", small_dataset_path, "--out", str(out)], capsys)
+    code, err = train_main([*SMOKE, "--env", "walker", "--dataset", small_dataset_path, "--out", str(out)], capsys)
     assert code == 2 and err.count("error:") == 1 and "recorded in hopper, not in walker" in err and not out.exists()
     with h5py.File(small_dataset_path) as f:
         flat = {k: f[k][()] for k in ("observations", "actions", "rewards", "terminals", "timeouts")}
@@ -195,26 +153,14 @@ def test_data_that_cannot_be_trained_on_stops_before_anything_is_written(tmp_pat
         with h5py.File(tmp_path / name, "w") as f:
             for k, v in arrays.items():
                 f.create_dataset(k, data=v)
-        code, err = _main([*SMOKE, "--dataset", str(tmp_path / name), "--out", str(out)], capsys)
+        code, err = train_main([*SMOKE, "--dataset", str(tmp_path / name), "--out", str(out)], capsys)
         assert code == 2 and err.count("error:") == 1 and message in err and "Traceback" not in err, err
         assert not out.exists()
 
 
-def test_bad_out_is_refused_before_the_dataset_is_recorded(tmp_path, cli_env, capsys, monkeypatch):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    (tmp_path / "afile").write_text("x")
-    named = [*SMOKE, "--dataset", "medium"]  # would record hopper medium into the (empty) cache first
-    for out, message in [(tmp_path / "afile", "is a file, not a directory"),
-                         (tmp_path / "afile" / "run", "is a file, not a directory"),
-                         ("/proc/minsubdt-run", "cannot write in /proc")]:
-        code, err = _main([*named, "--out", str(out)], capsys)
-        assert code == 2 and message in err and "Traceback" not in err, err
-    assert not (tmp_path / "cache").exists()  # nothing recorded
-
-
 def test_diverging_training_stops_with_an_error_and_no_results(tmp_path, small_dataset_path, capsys):
     out = tmp_path / "nan"
-    code, err = _main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--learning-rate", "1e30"], capsys)
+    code, err = train_main([*SMOKE, "--dataset", small_dataset_path, "--out", str(out), "--learning-rate", "1e30"], capsys)
     assert code == 2 and "training diverged: non-finite loss" in err and "Traceback" not in err
     assert not (out / "results.json").exists() and not (out / "metrics.jsonl").exists()
     assert not any(d.isdigit() for d in os.listdir(out / "checkpoints"))
@@ -227,9 +173,9 @@ def test_resume_refuses_fewer_steps_and_other_data_and_survives_a_torn_log(tmp_p
     shutil.copy(small_dataset_path, data)
     out = tmp_path / "run"
     common = [*SMOKE, "--dataset", str(data), "--out", str(out), "--eval-episodes", "0"]
-    assert _main(common, capsys)[0] == 0  # 20 steps
+    assert train_main(common, capsys)[0] == 0  # 20 steps
     before = {n: (out / n).read_bytes() for n in ("config.json", "dataset.json", "metrics.jsonl")}
-    code, err = _main([*common, "--steps", "10", "--resume"], capsys)
+    code, err = train_main([*common, "--steps", "10", "--resume"], capsys)
     assert code == 2 and "--steps 10 is below the run's last checkpoint, step 20" in err
     # the same path, other contents (one action changed)
     from minsubdt_jax.data import load_d4rl, save_d4rl
@@ -239,14 +185,14 @@ def test_resume_refuses_fewer_steps_and_other_data_and_survives_a_torn_log(tmp_p
     actions = d.actions.copy()
     actions[0, 0, 0] += 0.5
     save_d4rl(Trajectories(d.observations, actions, d.rewards, d.lengths, d.terminals), data)
-    code, err = _main([*common, "--steps", "30", "--resume"], capsys)
+    code, err = train_main([*common, "--steps", "30", "--resume"], capsys)
     assert code == 2 and "the dataset differs from the one the run started on" in err
     assert {n: (out / n).read_bytes() for n in before} == before  # refusals change nothing
     shutil.copy(small_dataset_path, data)
     # a kill while a metrics line was being written leaves half a line: resume drops it, keeps the rest
     with open(out / "metrics.jsonl", "a") as f:
         f.write('{"step": 30, "loss": 0.')
-    assert _main([*common, "--steps", "30", "--resume"], capsys)[0] == 0
+    assert train_main([*common, "--steps", "30", "--resume"], capsys)[0] == 0
     steps = [json.loads(ln)["step"] for ln in (out / "metrics.jsonl").read_text().splitlines()]
     assert steps == [10, 20, 30]
     assert json.loads((out / "config.json").read_text())["steps"] == 30
@@ -308,7 +254,7 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     for text, name, msg in (("steps: [\n", "a.yaml", "does not parse"), ('{"stpes": 3}', "b.json", "unknown field"),
                             ('{"steps": "3"}', "c.json", "field 'steps' must be int")):
         (tmp_path / name).write_text(text)
-        code, err = _main(["--config", str(tmp_path / name), "--out", str(out)], capsys)
+        code, err = train_main(["--config", str(tmp_path / name), "--out", str(out)], capsys)
         assert code == 2 and msg in err and err.count("\n") == 1 and not out.exists(), err
     helps = field_help(Config)
     assert all(helps.get(f.name) for f in dataclasses.fields(Config)), [f.name for f in dataclasses.fields(Config)
@@ -336,28 +282,3 @@ def test_plot_compares_runs_with_mean_and_std_over_seeds(full_run, tmp_path):
     assert matplotlib.image.imread(png).shape[1] == 1500
     assert plot_main([str(tmp_path / "none"), "--out", str(tmp_path / "x.png")]) == 2
     assert not (tmp_path / "x.png").exists()
-
-
-# each bounded setting: a value just outside its range, the range its one error line names, a value on its edge
-BOUNDS = [("dropout", 1.0, "in [0, 1)", 0.0), ("eval_episodes", -1, ">= 0", 0), ("weight_decay", -1e-4, ">= 0", 0.0),
-          ("grad_clip", 0.0, "> 0", 1e-3), ("discount", 1.5, "in [0, 1]", 1.0), ("iql_expectile", 1.0, "in (0, 1)", 0.5),
-          ("cql_alpha", -1.0, ">= 0", 0.0), ("tau", 1.5, "in (0, 1]", 1.0), ("brac_alpha", -0.1, ">= 0", 0.0),
-          ("ema_decay", 1.0, "in [0, 1)", 0.0), ("cost_label_noise", 0.5, "in [0, 0.5)", 0.0),
-          ("physics_threads", -1, ">= 0", 0), ("devices", -1, ">= 0", 0), ("seed", -1, ">= 0", 0),
-          ("dataset_seed", -1, ">= 0", 0), ("dataset_transitions", 0, "> 0", 1), ("rtg_scale", 0.0, "> 0", None),
-          ("actor_lr", -1e-3, "> 0", None), ("alpha_max", 0.0, "> 0", None)]
-
-
-@pytest.mark.parametrize("name,bad,says,edge", BOUNDS)
-def test_a_setting_out_of_range_is_one_error_naming_that_setting_and_its_range(name, bad, says, edge):
-    """Not one message for several settings ('need --eval-episodes >= 0, 0 <= --dropout < 1, ...'): the one that is
-    wrong, its range, and the value given."""
-    import dataclasses
-
-    from minsubdt_jax.config import PRESETS, validate
-
-    flag = "--" + name.replace("_", "-")
-    with pytest.raises(ValueError) as e:
-        validate(dataclasses.replace(PRESETS["smoke"], **{name: bad}))
-    assert str(e.value).startswith(f"{flag} must be {says}") and f"got {bad}" in str(e.value), str(e.value)
-    validate(dataclasses.replace(PRESETS["smoke"], **{name: edge}))
