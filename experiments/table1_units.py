@@ -7,6 +7,7 @@ import dataclasses
 import json
 import os
 import subprocess
+import time
 
 from minsubdt_jax.agents import AGENTS, missing_presets, result_fields
 from minsubdt_jax.methods import METHODS as ALL_METHODS
@@ -103,8 +104,21 @@ def commit_results(paths: list[str], message: str) -> None:
     results land in the history as they finish)."""
     cwd = os.path.dirname(os.path.abspath(paths[0]))
     rel = [os.path.relpath(os.path.abspath(p), cwd) for p in paths]
-    subprocess.run(["git", "add", "--", *rel], cwd=cwd, check=True, capture_output=True)
-    subprocess.run(["git", "commit", "-q", "-m", message, "--", *rel], cwd=cwd, check=True, capture_output=True)
+    git(["add", "--", *rel], cwd)
+    git(["commit", "-q", "-m", message, "--", *rel], cwd)
+
+
+def git(args: list[str], cwd: str, wait_s: float = 120.0) -> None:
+    """``git args`` in ``cwd``; while another git process (a developer's commit beside the sweep) holds the index
+    lock, waits for it, up to ``wait_s``, then raises as git's own error does."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        p = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True)
+        if p.returncode == 0:
+            return
+        if "index.lock" not in p.stderr or time.monotonic() > deadline:
+            raise subprocess.CalledProcessError(p.returncode, p.args, p.stdout, p.stderr)
+        time.sleep(0.5)
 
 
 def stale_fields(saved: dict, expected) -> dict:

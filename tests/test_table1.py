@@ -5,11 +5,16 @@ tests/test_table1_report.py's)."""
 import dataclasses
 import json
 import os
+import subprocess
+import threading
 
 import numpy as np
 import pytest
 
-from minsubdt_jax.agents import preset_config
+import table1_units  # experiments/ (pyproject's pythonpath)
+from minsubdt_jax.agents import AGENTS, preset_config
+from minsubdt_jax.config import PRESETS
+from minsubdt_jax.rundir import Interrupted
 from minsubdt_jax.agents.dt.networks import DT_REVISION
 from table1_fakes import BASE, fake_results, recording_sweep
 
@@ -49,11 +54,9 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model
 
 
-def test_commit_results_commits_only_the_unit_files(tmp_path):
-    import subprocess
-
-    import table1_units
-
+def test_commit_results_commits_only_the_unit_files_and_waits_out_another_commit(tmp_path):
+    """The sweep commits beside a developer's commits: a unit landing while another git process holds the index lock
+    waits for it (here 1 s) instead of dying with its results uncommitted."""
     git = lambda *a: subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True, text=True).stdout  # noqa
     git("init", "-q")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "--allow-empty", "-m", "root")
@@ -62,6 +65,8 @@ def test_commit_results_commits_only_the_unit_files(tmp_path):
     (tmp_path / "other.txt").write_text("work in progress")
     git("config", "user.name", "t")
     git("config", "user.email", "t@t")
+    (tmp_path / ".git" / "index.lock").write_text("")
+    threading.Timer(1.0, (tmp_path / ".git" / "index.lock").unlink).start()
     table1_units.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
     assert git("log", "-1", "--format=%s").strip() == "Table 1 (smoke): x; resume: python ..."
     assert git("show", "--name-only", "--format=").split() == ["res/a.json"]
@@ -69,8 +74,6 @@ def test_commit_results_commits_only_the_unit_files(tmp_path):
 
 
 def test_seed_runs_groups_consecutive_seeds():
-    import table1_units
-
     assert table1_units.seed_runs([2, 0, 1]) == [(0, 3)]
     assert table1_units.seed_runs({0, 2, 3, 5}) == [(0, 1), (2, 2), (5, 1)]
     assert table1_units.seed_runs([]) == []
@@ -189,9 +192,6 @@ def test_study_trains_each_agent_family_at_its_own_setting_and_refuses_an_unset_
     """At ``--preset study`` the DT family's program gets the study preset (cosine, EMA, 10k steps) and a critic
     agent the setting its own curve chose (``AgentInfo.presets``, here one given to IQL); a critic agent without one
     is one error before anything trains or is written, from the command line and from ``run_sweep``."""
-    from minsubdt_jax.agents import AGENTS
-    from minsubdt_jax.config import PRESETS
-
     monkeypatch.setitem(AGENTS["iql"].presets, "study", dict(steps=1234, lr_schedule="constant", ema_decay=0.0))
     cfgs = []
 
@@ -223,8 +223,6 @@ def test_a_result_trained_with_another_config_is_an_error_not_kept(table1, tmp_p
     now (a changed preset) is one error naming the file and the field, before anything trains or is written; one
     that differs only in how it was run (its program's seeds, chunking), or a critic agent's in a DT-family field
     it does not read, is kept and skipped."""
-    from minsubdt_jax import config
-
     calls, kw = recording_sweep(tmp_path)
     table1.run_sweep(methods=("dt", "iql"), seeds=(0, 1), **kw)
     calls.clear()
@@ -232,7 +230,7 @@ def test_a_result_trained_with_another_config_is_an_error_not_kept(table1, tmp_p
     assert calls == [("dt", 2, 1), ("iql", 2, 1)]
     res = tmp_path / "res" / "table1" / "smoke"
     before = {f: (res / f).read_text() for f in os.listdir(res)}
-    monkeypatch.setitem(config.PRESETS, "smoke", dataclasses.replace(config.PRESETS["smoke"], learning_rate=5e-4))
+    monkeypatch.setitem(PRESETS, "smoke", dataclasses.replace(PRESETS["smoke"], learning_rate=5e-4))
     calls.clear()
     with pytest.raises(ValueError, match=r"3 result file\(s\).*hopper-medium-dt-s0: learning_rate 0.001 \(now "
                                          r"0.0005\)"):
@@ -265,8 +263,6 @@ def test_ctrl_c_stops_the_sweep_not_only_its_unit(table1, tmp_path, monkeypatch,
     """A Ctrl-C in a unit (train's ``Interrupted``, raised after that unit's checkpoint) was counted as one failed
     unit, and the sweep went on to train the next one. It stops the sweep; the command line says so in one line,
     with the sweep's own resume command (exit 130)."""
-    from minsubdt_jax.rundir import Interrupted
-
     calls = []
 
     def pressed(cfg, resume=False, verbose=False):
