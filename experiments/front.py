@@ -12,7 +12,7 @@ each metric alone and on both (each scored on both: ``--eval-costs``). Then it r
 metric's cost from the demos' best to their worst), ``--episodes`` episodes per seed and target
 (:func:`minsubdt_jax.evaluate.evaluate_run`). Runs live in ``runs/front/<cell>/`` and resume; each target's
 per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (commit it). A cell whose file
-holds all of it is not run again, on any machine.
+holds all of it is not run again, on any machine; ``--commit`` commits the file as each part lands.
 
 ``report``: the hypervolumes, the steering Spearman and the figure (``experiments/front_report.py``).
 """
@@ -123,14 +123,22 @@ def run(a, path: str, out: dict) -> None:
     def save():
         write_atomic(path, json.dumps(out, indent=1))
 
+    def landed(what: str):  # --commit: the cell file alone, as each part lands (a machine may vanish mid-cell)
+        if a.commit:
+            from table1_units import commit_results
+            commit_results([path], f"Front (issue 55), {cell_name(a)}: {what} landed; resume: bash "
+                                   "experiments/queue.sh front")
+
     if not sweeps_done(out, a):  # the vector methods and their sweeps first, the scalar runs after
         sweep(a, out, save)
+        landed("the target sweeps")
     for name in scalar_missing(out):
         res_dir = train_runs(a, [name])[name]
         with open(os.path.join(res_dir, "results.json")) as f:
             res = json.load(f)  # its recording's hash: another machine may record another file of the recipe
         out.setdefault("scalar", {})[name] = {**means(res["eval_per_seed"]), "dataset_sha256": res["dataset"]["sha256"]}
         save()
+        landed(name)
 
 
 def sweep(a, out: dict, save) -> None:
@@ -171,6 +179,8 @@ def main(argv=None) -> None:
     r.add_argument("--grid", type=int, default=5)
     r.add_argument("--tag", default="", help="names the results apart (a cheaper first look)")
     r.add_argument("--runs-root", default="runs/front")
+    r.add_argument("--commit", action="store_true", help="git-commit the cell's results file when its target sweeps "
+                   "are done and after each scalar run (its other files stay as they are)")
     sub.add_parser("report")
     a = p.parse_args(argv)
     if a.cmd == "report":

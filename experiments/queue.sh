@@ -78,7 +78,8 @@ front() {
     for cell in "${FRONT_CELLS[@]}"; do
         set -- $cell
         log "front $1 $2"
-        nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" || { log "front $1 $2 rc=$?"; return 1; }
+        nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" --commit \
+            || { log "front $1 $2 rc=$?"; return 1; }
         python experiments/front.py report > /dev/null
         # the report and the files of every cell as they stand (a cell under way too: it resumes from its file)
         commit "Front (issue 55): $1 $2 done, all cells' files; resume: bash experiments/queue.sh front" \

@@ -6,6 +6,7 @@ machine pays each distinct compile once; nothing outlives the session."""
 import atexit
 import os
 import shutil
+import subprocess
 import tempfile
 
 import numpy as np
@@ -60,6 +61,18 @@ def table1():
     import table1  # experiments/ (pyproject's pythonpath)
 
     return table1
+
+
+@pytest.fixture
+def git_repo(tmp_path):
+    """``tmp_path`` as a git repository with a committer (the sweeps' commits): ``git(*args) -> stdout`` in it."""
+    def git(*args):
+        return subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True, text=True).stdout
+
+    git("init", "-q")
+    git("config", "user.name", "t")
+    git("config", "user.email", "t@t")
+    return git
 
 
 @pytest.fixture(scope="session")

@@ -91,6 +91,26 @@ def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_
                                                 "dataset_sha256": "bb" * 32}
 
 
+def test_commit_lands_the_cell_file_after_each_scalar_run(front, tmp_path, monkeypatch, git_repo):
+    """``run --commit``: a machine can vanish mid-cell (its run directories with it), so each scalar run's result is
+    committed as it lands, the cell file alone (other changes in the work tree stay as they are)."""
+    cell_file(front, tmp_path, drop_scalar=True)
+    (tmp_path / "other.txt").write_text("work in progress")
+
+    def train_runs(a, names):
+        (tmp_path / "r").mkdir()
+        (tmp_path / "r" / "results.json").write_text(json.dumps({"dataset": {"sha256": "bb"}, "eval_per_seed": [
+            {"normalized_score_mean": 7.0, "costs_mean": {"x_velocity": 0.25, "energy@lived": 0.75}}]}))
+        return {names[0]: str(tmp_path / "r")}
+
+    monkeypatch.setattr(front, "train_runs", train_runs)
+    front.main([*ARGS, "--commit"])
+    assert git_repo("log", "-1", "--format=%s").strip() == ("Front (issue 55), walker-medium-replay: minsubdt-both "
+                                                       "landed; resume: bash experiments/queue.sh front")
+    assert git_repo("show", "--name-only", "--format=").split() == ["walker-medium-replay.json"]
+    assert "other.txt" in git_repo("status", "--porcelain")
+
+
 def test_scalar_runs_on_another_recording_are_named(front_report):
     """A scalar run whose recording's hash is not the sweeps' is named with its hash; one without a hash (recorded
     before the field) or with the sweeps' is not."""

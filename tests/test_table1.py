@@ -5,7 +5,6 @@ tests/test_table1_report.py's)."""
 import dataclasses
 import json
 import os
-import subprocess
 import threading
 
 import numpy as np
@@ -54,17 +53,14 @@ def test_whole_env_sweep_trains_the_env_in_one_program(table1, tmp_path):
     assert r["eval"]["normalized_score_mean"] == BASE["dt"] + 1 + 100  # the second dataset's model
 
 
-def test_commit_results_commits_only_the_unit_files_and_waits_out_another_commit(tmp_path):
+def test_commit_results_commits_only_the_unit_files_and_waits_out_another_commit(tmp_path, git_repo):
     """The sweep commits beside a developer's commits: a unit landing while another git process holds the index lock
     waits for it (here 1 s) instead of dying with its results uncommitted."""
-    git = lambda *a: subprocess.run(["git", *a], cwd=tmp_path, check=True, capture_output=True, text=True).stdout  # noqa
-    git("init", "-q")
-    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "--allow-empty", "-m", "root")
+    git = git_repo
+    git("commit", "-q", "--allow-empty", "-m", "root")
     (tmp_path / "res").mkdir()
     (tmp_path / "res" / "a.json").write_text("{}")
     (tmp_path / "other.txt").write_text("work in progress")
-    git("config", "user.name", "t")
-    git("config", "user.email", "t@t")
     (tmp_path / ".git" / "index.lock").write_text("")
     threading.Timer(1.0, (tmp_path / ".git" / "index.lock").unlink).start()
     table1_units.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
