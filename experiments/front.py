@@ -152,7 +152,8 @@ def sweep(a, out: dict, save) -> None:
     out.update({"cell": cell_name(a), "env": a.env, "dataset": a.dataset, "preset": a.preset, "seeds": a.seeds,
                 "episodes": a.episodes, "beta": loaded.cfg.beta, "metrics": list(PAIR),
                 "dataset_sha256": loaded.per_model[0].source.sha256, "demo_costs": demo.tolist(),
-                "command": "python experiments/front.py run " + " ".join(sys.argv[2:])})
+                "command": " ".join(["python experiments/front.py run",
+                                     *(x for x in sys.argv[2:] if x != "--commit")])})  # what reruns it
     for method in VECTOR:
         done = out.setdefault("sweeps", {}).setdefault(method, [])
         for target in grid_targets(method, demo, loaded.cfg.beta, a.grid):
