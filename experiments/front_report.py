@@ -61,8 +61,25 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
             f"`{r['command']}`", "",
             f"| points | hypervolume of the means | per seed | Spearman(target, cost) {PAIR[0]} | {PAIR[1]} | "
             f"other target held: {PAIR[0]} | {PAIR[1]} |", "|---|---|---|---|---|---|---|"]
-    notes.append(recordings(r))
+    notes += [scalar_subdominance(r) if r.get("scalar") else "", recordings(r)]
     return head + rows + ["", demos_trade_off(pts["demos"]), ""] + [x for n in notes if n for x in (n, "")], pts
+
+
+def scalar_subdominance(r: dict) -> str:
+    """Eq. 2 (``minsubdt_jax.subdominance.min_subdominance``, the cell's beta) of each scalar run's mean costs against
+    the demos' costs in the two metrics, and the demos' own, each against the others (leave-one-out): what the scalar
+    token asks for, read in the two metrics the front is drawn in."""
+    from minsubdt_jax.subdominance import min_subdominance
+
+    demos = np.asarray(r["demo_costs"], np.float32)
+    runs = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()], np.float32)
+    own = np.asarray(min_subdominance(runs, demos, r["beta"]).value)
+    line = (f"Eq. 2 against the demos in these two costs (beta {r['beta']}; lower: fewer demos beat it): "
+            + ", ".join(f"`{k}` {v:.3f}" for k, v in zip(r["scalar"], own)))
+    if len(demos) < 2:
+        return line + "."
+    d = np.asarray(min_subdominance(demos, demos, r["beta"], leave_one_out=True).value)
+    return line + f"; the demos' own, each against the others, {d.min():.3f}-{d.max():.3f} (median {np.median(d):.3f})."
 
 
 def recordings(r: dict) -> str:

@@ -111,6 +111,19 @@ def test_commit_lands_the_cell_file_after_each_scalar_run(front, tmp_path, monke
     assert "other.txt" in git_repo("status", "--porcelain")
 
 
+def test_the_scalar_runs_min_subdominance_is_a_hand_computation(front_report):
+    """Eq. 2 against one demo at (0.5, 0.5), beta 1: a point better in speed and worse in energy pays beta in energy
+    alone (alpha 0 there, alpha -> inf on speed): 1; one worse in both pays 2; one better in both 0. The demos' own
+    value holds each against the others (two demos, each better than the other in one metric: 1 each)."""
+    r = {"beta": 1.0, "demo_costs": [[0.5, 0.5]], "scalar": {
+        "a": {"costs": [[0.2, 0.9], [0.2, 0.9]]}, "b": {"costs": [[0.6, 0.6]]}, "c": {"costs": [[0.1, 0.1]]}}}
+    assert front_report.scalar_subdominance(r) == (
+        "Eq. 2 against the demos in these two costs (beta 1.0; lower: fewer demos beat it): `a` 1.000, `b` 2.000, "
+        "`c` 0.000.")  # one demo: none left to hold it against
+    r["demo_costs"] = [[0.2, 0.9], [0.9, 0.2]]
+    assert "the demos' own, each against the others, 1.000-1.000 (median 1.000)" in front_report.scalar_subdominance(r)
+
+
 def test_scalar_runs_on_another_recording_are_named(front_report):
     """A scalar run whose recording's hash is not the sweeps' is named with its hash; one without a hash (recorded
     before the field) or with the sweeps' is not."""
