@@ -38,6 +38,7 @@ def steering(t, c, k: int, held: bool = False) -> float:
 
 
 def cell_report(r: dict) -> tuple[list[str], dict]:
+    """One cell's section of front.md from its results file ``r``, and its points for the figure ``{label: [n, 2]}``."""
     rows, notes, pts = [], [], {"demos": np.asarray(r["demo_costs"])}
     rows.append(f"| demos ({len(r['demo_costs'])} episodes) | {hypervolume(pts['demos']):.3f} | "
                 "– | – | – | – | – |")
