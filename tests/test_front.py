@@ -65,15 +65,9 @@ def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
         front.main(ARGS)
 
 
-def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_path, monkeypatch):
-    """On a fresh machine the vector run's directory is gone; a cell whose sweeps are all in its file must not train
-    the vector methods again (hours) to reach the scalar run it lacks: only that run trains, and it lands in the file
-    beside the sweeps, which stay as they were."""
-    cell_file(front, tmp_path, drop_scalar=True)
-    path = tmp_path / "walker-medium-replay.json"
-    before = json.loads(path.read_text())
-    trained = []
-
+def scalar_trainer(tmp_path, trained):
+    """A fake ``train_runs`` for scalar runs: records the names asked for in ``trained`` and writes each run's
+    ``results.json`` (3 seeds at normalised 7.0, costs 0.25 and 0.75, a recording hashed "bb" x 32)."""
     def train_runs(a, names):
         trained.extend(names)
         out = tmp_path / "runs" / names[0]
@@ -82,7 +76,18 @@ def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_
             {"normalized_score_mean": 7.0, "costs_mean": {"x_velocity": 0.25, "energy@lived": 0.75}}] * 3}))
         return {names[0]: str(out)}
 
-    monkeypatch.setattr(front, "train_runs", train_runs)
+    return train_runs
+
+
+def test_a_cell_with_every_target_trains_only_its_missing_scalar_run(front, tmp_path, monkeypatch):
+    """On a fresh machine the vector run's directory is gone; a cell whose sweeps are all in its file must not train
+    the vector methods again (hours) to reach the scalar run it lacks: only that run trains, and it lands in the file
+    beside the sweeps, which stay as they were."""
+    cell_file(front, tmp_path, drop_scalar=True)
+    path = tmp_path / "walker-medium-replay.json"
+    before = json.loads(path.read_text())
+    trained = []
+    monkeypatch.setattr(front, "train_runs", scalar_trainer(tmp_path, trained))
     front.main(ARGS)
     after = json.loads(path.read_text())
     assert trained == ["minsubdt-both"]
@@ -96,14 +101,7 @@ def test_commit_lands_the_cell_file_after_each_scalar_run(front, tmp_path, monke
     committed as it lands, the cell file alone (other changes in the work tree stay as they are)."""
     cell_file(front, tmp_path, drop_scalar=True)
     (tmp_path / "other.txt").write_text("work in progress")
-
-    def train_runs(a, names):
-        (tmp_path / "r").mkdir()
-        (tmp_path / "r" / "results.json").write_text(json.dumps({"dataset": {"sha256": "bb"}, "eval_per_seed": [
-            {"normalized_score_mean": 7.0, "costs_mean": {"x_velocity": 0.25, "energy@lived": 0.75}}]}))
-        return {names[0]: str(tmp_path / "r")}
-
-    monkeypatch.setattr(front, "train_runs", train_runs)
+    monkeypatch.setattr(front, "train_runs", scalar_trainer(tmp_path, []))
     front.main([*ARGS, "--commit"])
     assert git_repo("log", "-1", "--format=%s").strip() == ("Front (issue 55), walker-medium-replay: minsubdt-both "
                                                        "landed; resume: bash experiments/queue.sh front")
