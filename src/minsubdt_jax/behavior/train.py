@@ -64,6 +64,7 @@ class SACState:
 
 
 _CHUNKS: dict = {}  # compiled chunks, shared by SAC instances of equal settings (e.g. a run and its resumption)
+_RESETS: dict = {}  # the envs' jitted reset by (env, num_envs), likewise: tracing MJX's reset takes seconds
 
 
 class SAC:
@@ -98,7 +99,10 @@ class SAC:
         return _distinct(state), self.reset_envs(k_env)
 
     def reset_envs(self, rng):
-        return _distinct(jax.jit(jax.vmap(self.env.reset))(jax.random.split(rng, self.cfg.num_envs)))
+        key = (self.spec.name, self.cfg.num_envs)
+        if key not in _RESETS:
+            _RESETS[key] = jax.jit(jax.vmap(self.env.reset))
+        return _distinct(_RESETS[key](jax.random.split(rng, self.cfg.num_envs)))
 
     def update(self, state: SACState, rng) -> tuple[SACState, dict]:
         """One gradient update of critics, actor and temperature on a uniform batch from the buffer."""
