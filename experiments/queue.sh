@@ -5,7 +5,8 @@
 #   bash experiments/queue.sh table    # issue 54: Table 1's DT-family sweep at study, seed 0, then 1, then 2
 #   bash experiments/queue.sh curves   # issue 54: the curves that chose study, with the fixed DT (revision 2)
 #   bash experiments/queue.sh front    # issue 55: the fronts' remaining cells
-#   bash experiments/queue.sh status   # what each lane has left, from the committed result files
+#   bash experiments/queue.sh status   # what each lane has left, from the committed result files, and the runs
+#                                      # under way that this machine's checkpoints resume
 #
 # In the background, one lane per log (each lane waits while another process runs its own script):
 #   mkdir -p runs/logs && for l in table curves front; do
@@ -87,7 +88,7 @@ front() {
     done
 }
 
-status() {  # what each lane has left, from the committed result files
+status() {  # what each lane has left, from the committed result files; this machine's runs under way
     local curves=() fronts=() cell
     for cell in "${CURVE_CELLS[@]}"; do
         set -- $cell
@@ -115,6 +116,11 @@ for cell in fronts:
     r = json.load(open(f)) if os.path.exists(f) else {}
     k = {m: len(v) for m, v in r.get("sweeps", {}).items()}
     print(f"front {cell}: targets {k or 'none'}, scalar runs {sorted(r.get('scalar', {})) or 'none'}")
+# where this machine's lanes resume from: run directories with checkpoints and no results.json yet
+for d in sorted({os.path.dirname(c) for c in __import__("glob").glob("runs/**/checkpoints", recursive=True)}):
+    steps = [int(s) for s in os.listdir(f"{d}/checkpoints") if s.isdigit()]
+    if steps and not os.path.exists(f"{d}/results.json"):
+        print(f"this machine's checkpoints: {d} at step {max(steps)}")
 PY
 }
 
