@@ -96,7 +96,7 @@ status() {  # what each lane has left, from the committed result files; this mac
     done
     for cell in "${FRONT_CELLS[@]}"; do fronts+=("${cell// /-}"); done
     PYTHONPATH=experiments python - "${#curves[@]}" "${curves[@]}" "${fronts[@]}" << 'PY'
-import json, os, sys
+import glob, json, os, sys
 
 from table1_report import DATASETS, ENVS, METHODS  # the table's DT-family columns and cells
 
@@ -117,7 +117,7 @@ for cell in fronts:
     k = {m: len(v) for m, v in r.get("sweeps", {}).items()}
     print(f"front {cell}: targets {k or 'none'}, scalar runs {sorted(r.get('scalar', {})) or 'none'}")
 # where this machine's lanes resume from: run directories with checkpoints and no results.json yet
-for d in sorted({os.path.dirname(c) for c in __import__("glob").glob("runs/**/checkpoints", recursive=True)}):
+for d in sorted({os.path.dirname(c) for c in glob.glob("runs/**/checkpoints", recursive=True)}):
     steps = [int(s) for s in os.listdir(f"{d}/checkpoints") if s.isdigit()]
     if steps and not os.path.exists(f"{d}/results.json"):
         print(f"this machine's checkpoints: {d} at step {max(steps)}")
