@@ -11,6 +11,8 @@ from minsubdt_jax.agents import AGENTS
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
+from welch import welch  # experiments/
+
 ENVS = ("halfcheetah", "hopper", "walker")
 DATASETS = ("medium-expert", "medium", "medium-replay")
 METHODS = ("minsubdt", "minsubdt-learned", "dt", "bc")  # the seed's MinSubDT (engg., learned), DT and BC columns
@@ -73,24 +75,20 @@ def _cell(entry) -> str:
 
 def versus_dt(table: dict, methods=MINSUBDT_COLUMNS) -> dict:
     """Per cell (``"dataset/env"``) and MinSubDT column of ``table`` (:func:`table1.aggregate`'s, population std over
-    n seeds): ``{"diff": mean - DT's mean, "se": ..., "verdict": ...}``. The standard error is Welch's,
-    sqrt(s_m^2 / n_m + s_dt^2 / n_dt) with the seeds' sample variances (s^2 = std^2 n / (n - 1)); the verdict is
-    "behind" or "ahead" where |diff| > 2 se, "level" where it is not, and "–" (no verdict) with fewer than 2 seeds
-    on either side. Cells without a DT result or without the column are left out."""
+    n seeds): ``{"diff": mean - DT's mean, "se", "df", "p", "verdict"}``, Welch's test over the seeds
+    (:func:`welch.welch`). The verdict is "behind" or "ahead" where |diff| > 2 se, "level" where it is not, and "–"
+    (no verdict; se, df and p None) with fewer than 2 seeds on either side. Cells without a DT result or without the
+    column are left out."""
     out = {}
     for key, row in table.items():
         dt = row.get("dt")
-        for m in methods:
-            if dt is None or m not in row:
-                continue
-            a = row[m]
-            diff = a["mean"] - dt["mean"]
-            if min(a["n_seeds"], dt["n_seeds"]) < 2:
-                out.setdefault(key, {})[m] = {"diff": diff, "se": None, "verdict": "–"}
-                continue
-            se = float(np.sqrt(a["std"] ** 2 / (a["n_seeds"] - 1) + dt["std"] ** 2 / (dt["n_seeds"] - 1)))
-            verdict = "level" if abs(diff) <= 2 * se else ("behind" if diff < 0 else "ahead")
-            out.setdefault(key, {})[m] = {"diff": diff, "se": se, "verdict": verdict}
+        for m in (m for m in methods if dt is not None and m in row):
+            if min(row[m]["n_seeds"], dt["n_seeds"]) < 2:
+                w = {"diff": row[m]["mean"] - dt["mean"], "se": None, "df": None, "p": None, "verdict": "–"}
+            else:
+                w = welch(row[m], dt)
+                w["verdict"] = "level" if abs(w["diff"]) <= 2 * w["se"] else ("behind" if w["diff"] < 0 else "ahead")
+            out.setdefault(key, {})[m] = w
     return out
 
 
@@ -100,13 +98,16 @@ def _versus_lines(vs: dict) -> list[str]:
     lines = ["", "## Where MinSubDT is behind DT, and by how much", "",
              "Each MinSubDT column's seed mean minus DT's, ± the standard error of that difference (Welch, over the "
              "seeds), and the verdict: *behind* or *ahead* where the difference exceeds two standard errors, "
-             "*level* where it does not (with 3 seeds that is a weak test: a level cell may still differ).", "",
+             "*level* where it does not. With 2 or 3 seeds that is a weak test both ways: a level cell may still "
+             "differ, and 2 SE is not a 5 % test at so few degrees of freedom, so Welch's two-sided p (its "
+             "Welch-Satterthwaite degrees of freedom) is given beside each verdict.", "",
              "| dataset | env | " + " | ".join(f"{METHOD_NAMES[m]} − DT" for m in methods) + " |", "|---|---|" + "---|" * len(methods)]
 
     def fmt(v):
         if v is None:
             return "–"
-        return f"{v['diff']:+.1f}" + ("" if v["se"] is None else f" ± {v['se']:.1f}") + f": {v['verdict']}"
+        p = "" if v.get("p") is None else f" (p {v['p']:.2f})"  # no p in results aggregated before it was kept
+        return f"{v['diff']:+.1f}" + ("" if v["se"] is None else f" ± {v['se']:.1f}") + f": {v['verdict']}{p}"
 
     lines += [f"| {d} | {e} | " + " | ".join(fmt(vs.get(f"{d}/{e}", {}).get(m)) for m in methods) + " |"
               for d in DATASETS for e in ENVS]

@@ -83,18 +83,23 @@ def test_versus_dt_is_welchs_difference_with_a_two_se_verdict(table1):
                      "better_than_mean_demo_share": 0.5, "rollout_min_subdominance": 1.0} for m, s in row.items()}
              for k, row in scores.items()}
     vs = table1.versus_dt(table)
-    for m in ("minsubdt", "minsubdt-learned"):  # Welch's t is diff / se
-        ref = ttest_ind(scores["medium/hopper"][m], scores["medium/hopper"]["dt"], equal_var=False).statistic
+    for m in ("minsubdt", "minsubdt-learned"):  # Welch's t is diff / se; its p has Welch-Satterthwaite's dof
+        ref = ttest_ind(scores["medium/hopper"][m], scores["medium/hopper"]["dt"], equal_var=False)
         v = vs["medium/hopper"][m]
-        assert v["diff"] / v["se"] == pytest.approx(ref, rel=1e-12)
+        assert v["diff"] / v["se"] == pytest.approx(ref.statistic, rel=1e-12)
+        assert (v["df"], v["p"]) == pytest.approx((ref.df, ref.pvalue), rel=1e-9)
     assert vs["medium/hopper"]["minsubdt"]["diff"] == pytest.approx(-8.0)
     assert vs["medium/hopper"]["minsubdt"]["verdict"] == "behind"  # t = -3.5
     assert vs["medium/hopper"]["minsubdt-learned"]["verdict"] == "level"  # t = 0.8
-    assert vs["medium/walker"] == {"minsubdt": {"diff": 35.0, "se": None, "verdict": "–"}}  # DT has 1 seed
+    assert vs["medium/walker"] == {"minsubdt": {"diff": 35.0, "se": None, "df": None, "p": None,
+                                                "verdict": "–"}}  # DT has 1 seed
     assert "medium-replay/hopper" not in vs
+    flat = {"mean": 100.0, "std": 0.0, "n_seeds": 2}  # no spread in either column: no test, the 2 SE verdict stands
+    assert table1.versus_dt({"m/e": {"minsubdt": flat, "dt": dict(flat, mean=90.0)}})["m/e"]["minsubdt"] == {
+        "diff": 10.0, "se": 0.0, "df": None, "p": None, "verdict": "ahead"}
     md = table1.markdown({"preset": "study", "table": table, "averages": {}, "dataset_score": {},
                           "cost_rank_agreement": {}})
-    assert "| medium | hopper | -8.0 ± 2.3: behind | +1.3 ± 1.8: level |" in md
+    assert "| medium | hopper | -8.0 ± 2.3: behind (p 0.04) | +1.3 ± 1.8: level (p 0.50) |" in md
     assert "behind DT in 1 of 1 cells with ≥ 2 seeds each: hopper medium (-8.0)" in md
     assert "without a result at `study` (every cell '–'): CQL, BEAR, BRAC-v, AWR, IQL, TD3+BC." in md
     # the header says what a preset's numbers are: study's setting, paper's as they are, any other not a result
