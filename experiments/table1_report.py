@@ -106,7 +106,7 @@ def _versus_lines(vs: dict) -> list[str]:
     def fmt(v):
         if v is None:
             return "–"
-        p = "" if v.get("p") is None else f" (p {v['p']:.2f})"  # no p in results aggregated before it was kept
+        p = "" if v["p"] is None else f" (p {v['p']:.2f})"  # None: fewer than 2 seeds, or no spread in either
         return f"{v['diff']:+.1f}" + ("" if v["se"] is None else f" ± {v['se']:.1f}") + f": {v['verdict']}{p}"
 
     lines += [f"| {d} | {e} | " + " | ".join(fmt(vs.get(f"{d}/{e}", {}).get(m)) for m in methods) + " |"
