@@ -39,6 +39,7 @@ import numpy as np
 from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHED_BASELINES,
                            data_files, markdown, versus_dt)
 import table1_compare
+import table1_seeds
 from table1_figures import model_curve, plot_cell_curves, plot_costs
 from table1_units import (check_critic_settings, check_not_stale, commit_results, compact, per_seed_results,
                           plan_units, run_name)
@@ -146,17 +147,19 @@ def summarise(preset: str, results_root=RESULTS) -> tuple[dict, list]:
         if ev is None:
             continue
         c = cells.setdefault((row["dataset"], row["env"], row["method"]), {"scores": [], "seeds": [], "btd": [],
-                                                                          "ms": [], "ms_demo": []})
+                                                                          "ms": [], "ms_demo": [], "lengths": []})
         c["scores"].append(ev["normalized_score_mean"])
+        c["lengths"].append(ev["length_mean"])
         c["seeds"].append(row["seed"])
         c["btd"].append(ev["better_than_mean_demo_share"])
         c["ms"].append(ev["min_subdominance_mean"])
         c["ms_demo"].append(row["r"]["dataset"]["min_subdominance_mean"] if row["method"] == "minsubdt" else None)
     table = {}
     for (ds, env, m), c in cells.items():
-        s = np.asarray(c["scores"])
+        s, order = np.asarray(c["scores"]), np.argsort(c["seeds"])
         table.setdefault(f"{ds}/{env}", {})[m] = {
             "mean": float(s.mean()), "std": float(s.std()), "n_seeds": len(s), "seeds": sorted(c["seeds"]),
+            "scores": [float(s[i]) for i in order], "lengths": [float(c["lengths"][i]) for i in order],
             "better_than_mean_demo_share": float(np.mean(c["btd"])), "rollout_min_subdominance": float(np.mean(c["ms"])),
         }
     averages = {}
@@ -197,7 +200,7 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
     with open(os.path.join(out_root, "table1.json"), "w") as f:
         json.dump(out, f, indent=2)
     with open(os.path.join(out_root, "table1.md"), "w") as f:
-        f.write(markdown(out) + table1_compare.markdown(out))
+        f.write(markdown(out) + table1_seeds.markdown(out) + table1_compare.markdown(out))
     if plots and rows:
         for env in ENVS:
             plot_costs(rows, env, os.path.join(out_root, f"table1_costs_{env}.png"))

@@ -17,6 +17,7 @@ def fake_results(cfg):
     models = [(m, s) for m in cfg.methods for s in seeds]
     evals = [{"method": m, "seed": s, "normalized_score_mean": BASE[m] + s + 100 * i,
               "better_than_mean_demo_share": 0.5 + 0.1 * s, "min_subdominance_mean": 1.0, "episodes": 2,
+              "length_mean": 600.0 + 100 * s,
               "costs": [[0.4, 0.5], [0.6, 0.4]], **({"dataset": d} if many else {})}
              for i, d in enumerate(cfg.datasets) for m, s in models]
     models = [m for _ in cfg.datasets for m in models]

@@ -156,3 +156,21 @@ def test_before_the_fix_averages_compare_the_same_cells(table1, tmp_path):
     now = BASE["dt"] + 0.5
     assert f"| **average (all)** | | – | – | {now - 7:.1f} → {now:.1f} (+7.0), 1 of 2 cells | – |" in md
     assert f"| **average (without medium-replay)** | | – | – | {now - 7:.1f} → {now:.1f} (+7.0) | – |" in md
+
+
+def test_report_lists_each_seeds_score_length_and_recording(table1, tmp_path):
+    """Each DT-family run's own score and rollout length, by seed, beside the recording it trained on: the table
+    gives mean ± std only, and the seeds of one cell may come from different recordings of the recipe."""
+    kw = dict(preset="smoke", envs=("hopper",), datasets=("medium",), runs_root=str(tmp_path / "runs"),
+              results_root=str(tmp_path / "res"), train_fn=lambda cfg, **_: fake_results(cfg), log=lambda *_: None)
+    table1.run_sweep(methods=("minsubdt", "dt"), seeds=(0, 1), **kw)
+    for f in (tmp_path / "res" / "table1" / "smoke").glob("*-s1.json"):  # seed 1 on another file, own score 47.0
+        r = json.loads(f.read_text())
+        r["dataset"].update(sha256="b" * 64, normalized_score_mean=47.0)
+        f.write_text(json.dumps(r))
+    table1.aggregate("smoke", results_root=str(tmp_path / "res"), out_root=str(tmp_path / "agg"), plots=False)
+    md = (tmp_path / "agg" / "table1.md").read_text().split("## Each seed")[1].split("\n## ")[0]
+    # fake_results: score BASE[m] + seed, length 600 + 100 x seed; no BC or learned-cost run
+    assert "| medium | hopper | 0 | not recorded (45.0) | 50.0 (600) | – | 60.0 (600) | – |" in md
+    assert "| medium | hopper | 1 | bbbbbbbbbbbb (47.0) | 51.0 (700) | – | 61.0 (700) | – |" in md
+    assert "| medium | walker |" not in md  # cells without a run have no row
