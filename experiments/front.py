@@ -12,7 +12,9 @@ each metric alone and on both (each scored on both: ``--eval-costs``). Then it r
 metric's cost from the demos' best to their worst), ``--episodes`` episodes per seed and target
 (:func:`minsubdt_jax.evaluate.evaluate_run`). Runs live in ``runs/front/<cell>/`` and resume; each target's
 per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (commit it). A cell whose file
-holds all of it is not run again, on any machine; ``--commit`` commits the file as each part lands.
+holds all of it is not run again, on any machine; ``--commit`` commits the file as each part lands (the sweeps
+once both are done). A file holding part of a sweep is finished only by the vector run it came from (same
+recording): on another machine, or after another training, ``run`` refuses with one error line.
 
 ``report``: the hypervolumes, the steering Spearman and the figure (``experiments/front_report.py``).
 """
@@ -217,6 +219,27 @@ def check_args(a, path: str, made: dict) -> None:
     if differ:
         raise ValueError(f"{path} was made with " + " ".join(f"--{k} {v}" for k, v in differ.items())
                          + ": give the same, or --tag NAME for a cell file of its own")
+    check_part_sweep(a, path, made)
+
+
+def check_part_sweep(a, path: str, made: dict) -> None:
+    """One ValueError where the cell's file holds some targets but not all, and this machine's vector run is not
+    the one they came from (absent, or trained on another recording): finishing the sweep with other models would
+    put the targets of two trainings in one front. (Targets are saved as they land; the file is committed once
+    both sweeps are done.)"""
+    n = sum(len(v) for v in made.get("sweeps", {}).values())
+    if not n or sweeps_done(made, a):
+        return
+    vec = os.path.join(a.runs_root, cell_name(a), "vec")
+    if not os.path.exists(os.path.join(vec, "results.json")):
+        raise ValueError(f"{path} holds {n} targets rolled out from vector models that {vec} does not hold: sweep "
+                         "on the machine that does, or move the file's sweeps aside to sweep again")
+    with open(os.path.join(vec, "results.json")) as f:
+        sha = json.load(f)["dataset"]["sha256"]
+    if sha != made.get("dataset_sha256"):
+        raise ValueError(f"{path} holds {n} targets of vector models trained on the recording "
+                         f"{str(made.get('dataset_sha256'))[:12]}; {vec} trained on {sha[:12]}: move the file's "
+                         "sweeps aside to sweep again")
 
 
 if __name__ == "__main__":

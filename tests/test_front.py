@@ -23,7 +23,8 @@ def front_report():
 
 
 def cell_file(front, tmp_path, drop_target=False, drop_scalar=False):
-    """A results file of walker medium-replay with every target of a 2 x 2 grid and every scalar run."""
+    """A results file of walker medium-replay with every target of a 2 x 2 grid and every scalar run, its vector
+    models trained on a recording hashed "aa" x 32."""
     demo = np.array([[0.2, 0.9], [0.8, 0.1], [0.5, 0.5]])
     sweeps = {m: [{"target": t, "normalized": [1.0], "costs": [[0.5, 0.5]]}
                   for t in front.grid_targets(m, demo, 1.0, 2)] for m in front.VECTOR}
@@ -33,7 +34,7 @@ def cell_file(front, tmp_path, drop_target=False, drop_scalar=False):
     if drop_scalar:
         scalar.popitem()
     out = {"cell": "walker-medium-replay", "preset": "study", "seeds": 3, "episodes": 100, "beta": 1.0,
-           "demo_costs": demo.tolist(), "sweeps": sweeps, "scalar": scalar}
+           "dataset_sha256": "aa" * 32, "demo_costs": demo.tolist(), "sweeps": sweeps, "scalar": scalar}
     (tmp_path / "walker-medium-replay.json").write_text(json.dumps(out))
 
 
@@ -53,8 +54,16 @@ def test_a_complete_cell_is_not_trained_again(front, tmp_path, monkeypatch, caps
     monkeypatch.setattr(front, "train_runs", reach)
     front.main(ARGS)
     assert "complete" in capsys.readouterr().out
-    with pytest.raises(Reached):  # another grid is other work
-        front.main(ARGS[:-1] + ["3"])
+    with pytest.raises(Reached):  # another grid is other work (for the vector models that swept the file's)
+        front.main(ARGS[:-1] + ["3"] + vector_run(tmp_path))
+
+
+def vector_run(tmp_path, sha="aa" * 32):
+    """``--runs-root`` whose walker medium-replay vector run has finished, trained on a recording hashed ``sha``."""
+    vec = tmp_path / "runs" / "walker-medium-replay" / "vec"
+    vec.mkdir(parents=True)
+    (vec / "results.json").write_text(json.dumps({"dataset": {"sha256": sha}}))
+    return ["--runs-root", str(tmp_path / "runs")]
 
 
 @pytest.mark.parametrize("gap", ["drop_target", "drop_scalar"])
@@ -62,7 +71,24 @@ def test_an_incomplete_cell_trains(front, tmp_path, monkeypatch, gap):
     cell_file(front, tmp_path, **{gap: True})
     monkeypatch.setattr(front, "train_runs", reach)
     with pytest.raises(Reached):
-        front.main(ARGS)
+        front.main(ARGS + vector_run(tmp_path))
+
+
+@pytest.mark.parametrize("sha", [None, "cc" * 32])
+def test_a_part_swept_cell_does_not_mix_in_other_vector_models(front, tmp_path, monkeypatch, capsys, sha):
+    """Targets are saved as they are rolled out, and the file is committed once both sweeps are done; a part-swept
+    file on a machine without its vector run (gone, or trained again on another recording) must not be finished
+    with new models: one front would hold the targets of two trainings. One error line; nothing trains or changes."""
+    cell_file(front, tmp_path, drop_target=True)
+    path = tmp_path / "walker-medium-replay.json"
+    before = path.read_text()
+    monkeypatch.setattr(front, "train_runs", reach)
+    with pytest.raises(SystemExit) as e:
+        front.main(ARGS + (vector_run(tmp_path, sha) if sha else ["--runs-root", str(tmp_path / "runs")]))
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 2, err  # usage + error
+    assert "7 targets" in err and ("cccccccccccc" in err if sha else "does not hold" in err)
+    assert path.read_text() == before
 
 
 def scalar_trainer(tmp_path, trained):
