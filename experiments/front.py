@@ -42,6 +42,11 @@ def cell_name(a) -> str:
     return f"{a.env}-{a.dataset}" + (f"-{a.tag}" if a.tag else "")
 
 
+def run_dir(a, name: str) -> str:
+    """Where the run ``name`` (a key of ``RUNS``) of cell ``a`` lives."""
+    return os.path.join(a.runs_root, cell_name(a), name)
+
+
 def train_runs(a, names) -> dict:
     """Train (or resume, or skip when finished) the runs ``names`` of a cell; their directories."""
     from minsubdt_jax.agents import preset_config
@@ -52,7 +57,7 @@ def train_runs(a, names) -> dict:
     dirs = {}
     for name in names:
         methods, costs = RUNS[name]
-        out = os.path.join(a.runs_root, cell_name(a), name)
+        out = run_dir(a, name)
         dirs[name] = out
         if os.path.exists(os.path.join(out, "results.json")):
             continue
@@ -230,7 +235,7 @@ def check_part_sweep(a, path: str, made: dict) -> None:
     n = sum(len(v) for v in made.get("sweeps", {}).values())
     if not n or sweeps_done(made, a):
         return
-    vec = os.path.join(a.runs_root, cell_name(a), "vec")
+    vec = run_dir(a, "vec")
     if not os.path.exists(os.path.join(vec, "results.json")):
         raise ValueError(f"{path} holds {n} targets rolled out from vector models that {vec} does not hold: sweep "
                          "on the machine that does, or move the file's sweeps aside to sweep again")
