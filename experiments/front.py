@@ -127,7 +127,8 @@ def run(a, path: str, out: dict) -> None:
         return
     os.makedirs(RESULTS, exist_ok=True)
 
-    def save():
+    def save():  # the file says whether it holds all of the cell (the report gives no numbers of a partial one)
+        out["partial"] = not complete(out, a)
         write_atomic(path, json.dumps(out, indent=1))
 
     def landed(what: str):  # --commit: the cell file alone, as each part lands (a machine may vanish mid-cell)

@@ -116,6 +116,15 @@ def demos_trade_off(d) -> str:
             f"(all demos {d[:, 0].min():.3f}-{d[:, 0].max():.3f}).")
 
 
+def under_way(r: dict) -> str:
+    """The line of a cell whose file is ``partial`` (``front.run`` saves it as each part lands): what it holds, no
+    numbers (a part of a sweep is not a front)."""
+    sweeps = ", ".join(f"{m} {len(v)}" + " targets" * (i == 0) for i, (m, v) in enumerate(r.get("sweeps", {}).items()))
+    scalar = ", ".join(k.removeprefix("minsubdt-") for k in r.get("scalar", {})) or "none"
+    return (f"{r['cell']}: under way, not a result yet ({sweeps or 'no targets'}, scalar runs {scalar}); "
+            "`bash experiments/queue.sh front` resumes it")
+
+
 def report(a) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -134,10 +143,14 @@ def report(a) -> None:
              "single episodes; a method's point is the mean of one target's rollouts (3 seeds x its episodes), so the "
              "demos' front holds the spread of single episodes and the methods' fronts do not: compare the fronts' "
              "shapes in the figure as well as the numbers.", ""]
-    fig, axes = plt.subplots(1, len(files), figsize=(6 * len(files), 5), squeeze=False)
-    for ax, f in zip(axes[0], files):
+    cells = []
+    for f in files:
         with open(os.path.join(RESULTS, f)) as fh:
-            r = json.load(fh)
+            cells.append(json.load(fh))
+    lines += [under_way(r) for r in cells if r.get("partial")] + [""] * any(r.get("partial") for r in cells)
+    cells = [r for r in cells if not r.get("partial")]
+    fig, axes = plt.subplots(1, max(len(cells), 1), figsize=(6 * max(len(cells), 1), 5), squeeze=False)
+    for ax, r in zip(axes[0], cells):
         text, pts = cell_report(r)
         lines += text
         for (label, p), style in zip(pts.items(), ("o", "s", "^", "v")):

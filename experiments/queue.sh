@@ -82,9 +82,10 @@ front() {
         nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" --commit \
             || { log "front $1 $2 rc=$?"; return 1; }
         python experiments/front.py report > /dev/null
-        # the report and the files of every cell as they stand (a cell under way too: it resumes from its file)
-        commit "Front (issue 55): $1 $2 done, all cells' files; resume: bash experiments/queue.sh front" \
-            experiments/results/front experiments/results/front.md experiments/results/front.png
+        # this cell's file (complete) and the report; not another cell's file under way: only the machine holding
+        # its vector models may finish its sweeps (front.py run --commit commits it once they are done)
+        commit "Front (issue 55): $1 $2 done, and the report; resume: bash experiments/queue.sh front" \
+            "experiments/results/front/$1-$2.json" experiments/results/front.md experiments/results/front.png
     done
 }
 

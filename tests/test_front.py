@@ -3,6 +3,7 @@ machine its run directories are gone, and ``run`` would retrain ~3 h of models t
 the lines of experiments/front_report.py, against hand computations."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -221,3 +222,50 @@ def test_targets_beyond_the_demos_are_counted_by_hand(front_report):
                     "cost 0.700); 1 of 3 targets below every demo's energy@lived cost (0.300; theirs 0.010, at "
                     "x_velocity cost 0.950).")
     assert front_report.beyond_demos("m", means[2:], demos) == ""
+
+
+def test_a_cell_file_says_whether_it_is_partial_as_each_part_lands(front, tmp_path, monkeypatch):
+    """The file is saved as each target and scalar run lands, and a machine may stop between two: the file itself
+    says whether it holds all the cell's work (the report shows no numbers of a partial one)."""
+    cell_file(front, tmp_path, drop_scalar=True)
+    path = tmp_path / "walker-medium-replay.json"
+    seen = []  # the flag of each save, read back from the file
+    import minsubdt_jax.atomic as atomic
+    real = atomic.write_atomic
+    monkeypatch.setattr(atomic, "write_atomic", lambda p, text: (real(p, text), seen.append(
+        json.loads(path.read_text()).get("partial"))))
+    monkeypatch.setattr(front, "train_runs", scalar_trainer(tmp_path, []))
+    front.main(ARGS)
+    assert seen == [False]
+    data = json.loads(path.read_text())
+    del data["scalar"]["minsubdt-both"], data["scalar"]["minsubdt-x_velocity"]
+    path.write_text(json.dumps(data))
+    seen.clear()
+    shutil.rmtree(tmp_path / "runs")  # the fake trainer makes each run's directory anew
+    front.main(ARGS)
+    assert seen == [True, False]  # one scalar run landed of two, then the other
+
+
+def test_the_report_shows_no_numbers_of_a_partial_cell(front, front_report, tmp_path, monkeypatch):
+    """A cell under way (its file ``partial``: a sweep or a scalar run missing) is one line saying what it holds;
+    its hypervolumes and Spearman would be read as results (a 3-target sweep gave Spearman nan). Complete cells,
+    and files from before the flag, are reported as before; only they are drawn."""
+    cell_file(front, tmp_path)
+    done = {**json.loads((tmp_path / "walker-medium-replay.json").read_text()), "seeds": 1, "command": "c"}
+    for sweep in done["sweeps"].values():  # costs that follow the targets: a Spearman of +1, not nan
+        for s in sweep:
+            s["costs"] = [[s["target"]["x_velocity"] / 2, s["target"]["energy@lived"] / 2]]
+    (tmp_path / "walker-medium-replay.json").write_text(json.dumps(done))
+    part = {**done, "cell": "walker-medium", "partial": True, "scalar": {},
+            "sweeps": {"minsubdt-vec": done["sweeps"]["minsubdt-vec"], "dt-vec": done["sweeps"]["dt-vec"][:1]}}
+    (tmp_path / "walker-medium.json").write_text(json.dumps(part))
+    (tmp_path / "results").mkdir()
+    monkeypatch.setattr(front_report, "RESULTS", str(tmp_path))
+    monkeypatch.setattr(front_report, "HERE", str(tmp_path))
+    monkeypatch.setattr(front_report, "hypervolume", lambda p: 0.5)  # moocore is the optional [front] extra
+    front_report.report(None)
+    md = (tmp_path / "results" / "front.md").read_text()
+    assert "### walker-medium-replay" in md and "### walker-medium " not in md and "nan" not in md
+    assert ("walker-medium: under way, not a result yet (minsubdt-vec 4 targets, dt-vec 1, scalar runs none); "
+            "`bash experiments/queue.sh front` resumes it") in md
+    assert (tmp_path / "results" / "front.png").exists()
