@@ -11,8 +11,9 @@ each metric alone and on both (each scored on both: ``--eval-costs``). Then it r
 ``--grid`` x ``--grid`` grid of targets (``minsubdt-vec``: eq. 2's per-metric term from 0 to beta; ``dt-vec``: each
 metric's cost from the demos' best to their worst), ``--episodes`` episodes per seed and target
 (:func:`minsubdt_jax.evaluate.evaluate_run`). Runs live in ``runs/front/<cell>/`` and resume; each target's
-per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (commit it). A cell whose file
-holds all of it is not run again, on any machine; ``--commit`` commits the file as each part lands (the sweeps
+per-seed means land in ``experiments/results/front/<cell>.json`` as they finish (the file says ``partial`` until
+it holds every target and scalar run; the report gives no numbers of such a cell). A cell whose file holds all of it
+is not run again, on any machine; ``--commit`` commits the file as each part lands (the sweeps
 once both are done). A file holding part of a sweep is finished only by the vector run it came from (same
 recording): on another machine, or after another training, ``run`` refuses with one error line.
 

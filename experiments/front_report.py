@@ -147,7 +147,8 @@ def report(a) -> None:
     for f in files:
         with open(os.path.join(RESULTS, f)) as fh:
             cells.append(json.load(fh))
-    lines += [under_way(r) for r in cells if r.get("partial")] + [""] * any(r.get("partial") for r in cells)
+    under = [under_way(r) for r in cells if r.get("partial")]
+    lines += under + [""] * bool(under)
     cells = [r for r in cells if not r.get("partial")]
     fig, axes = plt.subplots(1, max(len(cells), 1), figsize=(6 * max(len(cells), 1), 5), squeeze=False)
     for ax, r in zip(axes[0], cells):
