@@ -82,10 +82,10 @@ front() {
         nice -n 5 python experiments/front.py run --env "$1" --dataset "$2" --commit \
             || { log "front $1 $2 rc=$?"; return 1; }
         python experiments/front.py report > /dev/null
-        # this cell's file (complete) and the report; not another cell's file under way: only the machine holding
-        # its vector models may finish its sweeps (front.py run --commit commits it once they are done)
+        # the report alone: run --commit has committed this cell's file as its parts landed, and another cell's
+        # file under way is this machine's (only its vector models may finish the sweeps)
         commit "Front (issue 55): $1 $2 done, and the report; resume: bash experiments/queue.sh front" \
-            "experiments/results/front/$1-$2.json" experiments/results/front.md experiments/results/front.png
+            experiments/results/front.md experiments/results/front.png
     done
 }
 
