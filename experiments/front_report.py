@@ -62,7 +62,7 @@ def cell_report(r: dict) -> tuple[list[str], dict]:
             f"`{r['command']}`", "",
             f"| points | hypervolume of the means | per seed | Spearman(target, cost) {PAIR[0]} | {PAIR[1]} | "
             f"other target held: {PAIR[0]} | {PAIR[1]} |", "|---|---|---|---|---|---|---|"]
-    notes += [scalar_subdominance(r) if r.get("scalar") else "", recordings(r)]
+    notes += [scalar_subdominance(r) if r.get("scalar") else "", reach(pts), recordings(r)]
     return head + rows + ["", demos_trade_off(pts["demos"]), ""] + [x for n in notes if n for x in (n, "")], pts
 
 
@@ -76,7 +76,7 @@ def scalar_subdominance(r: dict) -> str:
     runs = np.array([np.mean(v["costs"], 0) for v in r["scalar"].values()], np.float32)
     own = np.asarray(min_subdominance(runs, demos, r["beta"]).value)
     line = (f"Eq. 2 against the demos in these two costs (beta {r['beta']}; lower: fewer demos beat it): "
-            + ", ".join(f"`{k}` {v:.3f}" for k, v in zip(r["scalar"], own)))
+            + ", ".join(f"`{k}` {v:.3f} (costs {c[0]:.3f}, {c[1]:.3f})" for k, v, c in zip(r["scalar"], own, runs)))
     if len(demos) < 2:
         return line + "."
     d = np.asarray(min_subdominance(demos, demos, r["beta"], leave_one_out=True).value)
@@ -103,6 +103,16 @@ def beyond_demos(method: str, means, d) -> str:
             out.append(f"{below.sum()} of {len(means)} targets below every demo's {PAIR[k]} cost ({d[:, k].min():.3f}; "
                        f"theirs {means[below, k].mean():.3f}, at {PAIR[1 - k]} cost {means[below, 1 - k].mean():.3f})")
     return f"`{method}`: " + "; ".join(out) + "." if out else ""
+
+
+def reach(pts: dict) -> str:
+    """Where each set of points lies in metric space, ``pts`` the figure's ``{label: [n, 2]}`` (the demos' episodes,
+    the scalar runs' and each target's rollout means): min-max per metric, and the demos' medians."""
+    d = np.asarray(pts["demos"])
+    return ("Costs reached, min-max over the points (" + ", ".join(PAIR) + "): " + "; ".join(
+        f"{k} {np.min(p[:, 0]):.3f}-{np.max(p[:, 0]):.3f}, {np.min(p[:, 1]):.3f}-{np.max(p[:, 1]):.3f}"
+        for k, p in ((k, np.asarray(v)) for k, v in pts.items()))
+        + f"; the demos' medians {np.median(d[:, 0]):.3f}, {np.median(d[:, 1]):.3f}.")
 
 
 def demos_trade_off(d) -> str:

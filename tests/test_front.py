@@ -143,8 +143,8 @@ def test_the_scalar_runs_min_subdominance_is_a_hand_computation(front_report):
     r = {"beta": 1.0, "demo_costs": [[0.5, 0.5]], "scalar": {
         "a": {"costs": [[0.2, 0.9], [0.2, 0.9]]}, "b": {"costs": [[0.6, 0.6]]}, "c": {"costs": [[0.1, 0.1]]}}}
     assert front_report.scalar_subdominance(r) == (
-        "Eq. 2 against the demos in these two costs (beta 1.0; lower: fewer demos beat it): `a` 1.000, `b` 2.000, "
-        "`c` 0.000.")  # one demo: none left to hold it against
+        "Eq. 2 against the demos in these two costs (beta 1.0; lower: fewer demos beat it): `a` 1.000 (costs 0.200, "
+        "0.900), `b` 2.000 (costs 0.600, 0.600), `c` 0.000 (costs 0.100, 0.100).")  # one demo: none to hold it against
     r["demo_costs"] = [[0.2, 0.9], [0.9, 0.2]]
     assert "the demos' own, each against the others, 1.000-1.000 (median 1.000)" in front_report.scalar_subdominance(r)
 
@@ -269,3 +269,12 @@ def test_the_report_shows_no_numbers_of_a_partial_cell(front, front_report, tmp_
     assert ("walker-medium: under way, not a result yet (minsubdt-vec 4 targets, dt-vec 1, scalar runs none); "
             "`bash experiments/queue.sh front` resumes it") in md
     assert (tmp_path / "results" / "front.png").exists()
+
+
+def test_the_points_reach_is_min_max_by_hand(front_report):
+    """Three demos (speed 0.5-0.9, energy 0.3-0.6; medians 0.7, 0.5) and two target means: each set's range per
+    metric, as read off the arrays."""
+    pts = {"demos": np.array([[0.9, 0.3], [0.5, 0.6], [0.7, 0.5]]), "m": np.array([[0.95, 0.01], [0.4, 0.7]])}
+    assert front_report.reach(pts) == (
+        "Costs reached, min-max over the points (x_velocity, energy@lived): demos 0.500-0.900, 0.300-0.600; "
+        "m 0.400-0.950, 0.010-0.700; the demos' medians 0.700, 0.500.")
