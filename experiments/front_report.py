@@ -108,11 +108,11 @@ def beyond_demos(method: str, means, d) -> str:
 def reach(pts: dict) -> str:
     """Where each set of points lies in metric space, ``pts`` the figure's ``{label: [n, 2]}`` (the demos' episodes,
     the scalar runs' and each target's rollout means): min-max per metric, and the demos' medians."""
-    d = np.asarray(pts["demos"])
-    return ("Costs reached, min-max over the points (" + ", ".join(PAIR) + "): " + "; ".join(
-        f"{k} {np.min(p[:, 0]):.3f}-{np.max(p[:, 0]):.3f}, {np.min(p[:, 1]):.3f}-{np.max(p[:, 1]):.3f}"
-        for k, p in ((k, np.asarray(v)) for k, v in pts.items()))
-        + f"; the demos' medians {np.median(d[:, 0]):.3f}, {np.median(d[:, 1]):.3f}.")
+    ranges = "; ".join(f"{k} {lo[0]:.3f}-{hi[0]:.3f}, {lo[1]:.3f}-{hi[1]:.3f}"
+                       for k, p in pts.items() for lo, hi in [(np.min(p, 0), np.max(p, 0))])
+    med = np.median(pts["demos"], 0)
+    return (f"Costs reached, min-max over the points ({', '.join(PAIR)}): {ranges}; "
+            f"the demos' medians {med[0]:.3f}, {med[1]:.3f}.")
 
 
 def demos_trade_off(d) -> str:
