@@ -1,15 +1,17 @@
 #!/bin/bash
-# The open CPU work of issues 54 and 55, in lanes that resume from their checkpoints (runs/, this machine's) and
+# The open CPU work (issue 72; issues 54 and 55's lanes are done and kept for a rerun), in lanes that resume from their checkpoints (runs/, this machine's) and
 # commit each small result as it lands (only the result files; the rest of the work tree is left as it is):
 #
 #   bash experiments/queue.sh table    # issue 54: Table 1's DT-family sweep at study, seed 0, then 1, then 2
-#   bash experiments/queue.sh curves   # issue 54: the curves that chose study, with the fixed DT (revision 2)
+#   bash experiments/queue.sh curves   # issue 72: the surrogate reward under IQL and TD3+BC, at the last step or
+#                                      # spread over the episode (minsubdt-iql vs minsubdt-iql-spread, ...)
+#   bash experiments/queue.sh peers    # issue 72: d3rlpy's critic agents on our files (experiments/peer_critics.py)
 #   bash experiments/queue.sh front    # issue 55: the fronts' remaining cells
 #   bash experiments/queue.sh status   # what each lane has left, from the committed result files, and the runs
 #                                      # under way that this machine's checkpoints resume
 #
 # In the background, one lane per log (each lane waits while another process runs its own script):
-#   mkdir -p runs/logs && for l in table curves front; do
+#   mkdir -p runs/logs && for l in curves peers; do
 #     nohup setsid bash experiments/queue.sh $l > runs/logs/queue-$l.log 2>&1 & done
 # A lane done is a no-op when started again, on any machine: finished units, curves and cells are skipped by their
 # committed result files.
@@ -41,9 +43,11 @@ wait_for() {  # while another process runs this pattern, wait (the run directori
 log() { echo "[$(date -u +%FT%TZ)] $*"; }
 
 # what the curves and front lanes run (the table lane's cells are table1.py's own), read by status too
-CURVE_CELLS=("walker medium" "hopper medium-replay" "halfcheetah medium-expert")
-CURVE_FLAGS="--model cpu --methods minsubdt,dt --steps 10000 --eval-every 1000 --episodes 30 --seeds 3 \
---lr-schedule cosine --ema 0.999 --lr 1e-3 --tag rev2"
+# each curve: "env dataset methods steps" at the agent's study setting (its steps, EMA 0.999)
+CURVE_CELLS=("walker medium minsubdt-iql,minsubdt-iql-spread 60000" "hopper medium minsubdt-iql,minsubdt-iql-spread 60000"
+             "walker medium minsubdt-td3bc,minsubdt-td3bc-spread 100000"
+             "hopper medium minsubdt-td3bc,minsubdt-td3bc-spread 100000")
+CURVE_FLAGS="--model cpu --eval-every 5000 --chunk-steps 1000 --episodes 30 --seeds 3 --ema 0.999"
 FRONT_CELLS=("walker medium-replay" "halfcheetah medium-replay" "walker medium")
 
 table() {
@@ -62,11 +66,11 @@ curves() {
     wait_for "experiments/curves.py run"
     for cell in "${CURVE_CELLS[@]}"; do
         set -- $cell
-        log "curve $1 $2"
-        python experiments/curves.py run --env "$1" --dataset "$2" $CURVE_FLAGS \
-            || { log "curve $1 $2 rc=$?"; return 1; }
+        log "curve $*"
+        python experiments/curves.py run --env "$1" --dataset "$2" --methods "$3" --steps "$4" $CURVE_FLAGS \
+            || { log "curve $* rc=$?"; return 1; }
         python experiments/curves.py report > /dev/null
-        commit "Curves (issue 54, fixed DT): $1 $2; resume: bash experiments/queue.sh curves" \
+        commit "Curves (issue 72, the surrogate reward under a critic): $*; resume: bash experiments/queue.sh curves" \
             experiments/results/curves experiments/results/curves.md
     done
 }
@@ -93,7 +97,7 @@ status() {  # what each lane has left, from the committed result files; this mac
     local curves=() fronts=() cell
     for cell in "${CURVE_CELLS[@]}"; do
         set -- $cell
-        curves+=("$(python experiments/curves.py name --env "$1" --dataset "$2" $CURVE_FLAGS)")
+        curves+=("$(python experiments/curves.py name --env "$1" --dataset "$2" --methods "$3" --steps "$4" $CURVE_FLAGS)")
     done
     for cell in "${FRONT_CELLS[@]}"; do fronts+=("${cell// /-}"); done
     PYTHONPATH=experiments python - "${#curves[@]}" "${curves[@]}" "${fronts[@]}" << 'PY'

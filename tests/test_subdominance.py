@@ -6,7 +6,7 @@ from hypothesis.extra import numpy as hnp
 
 from conftest import brute_force_min_subdominance
 from minsubdt_jax.subdominance import (
-    min_subdominance, pairwise_subdominance, returns_to_go, subdominance, surrogate_rewards)
+    min_subdominance, pairwise_subdominance, returns_to_go, spread_surrogate_rewards, subdominance, surrogate_rewards)
 
 # Values on a 1/4 grid: exact ties are frequent, and no gap is so small that float32 rounding dominates.
 grid = st.integers(-12, 12).map(lambda v: v / 4)
@@ -215,3 +215,12 @@ def test_surrogate_rewards_and_returns_to_go():
     np.testing.assert_allclose(R, [[-0.5, -0.5, -0.5, 0], [-2.0, 0, 0, 0]])
     R = np.asarray(returns_to_go(jnp.array([[1.0, 2.0, 3.0, 9.0]]), jnp.array([3])))
     np.testing.assert_allclose(R, [[6.0, 5.0, 3.0, 0.0]])
+
+
+def test_spread_surrogate_rewards_pay_the_same_return_evenly():
+    """``-min_subdom / L`` at each valid step, by hand; the undiscounted return equals the last-step reward's."""
+    ms, lengths = jnp.array([0.6, 2.0]), jnp.array([3, 1])
+    r = np.asarray(spread_surrogate_rewards(ms, lengths, max_len=4))
+    np.testing.assert_allclose(r, [[-0.2, -0.2, -0.2, 0], [-2.0, 0, 0, 0]], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(returns_to_go(r, lengths))[:, 0],
+                               np.asarray(returns_to_go(surrogate_rewards(ms, lengths, 4), lengths))[:, 0], rtol=1e-6)

@@ -22,6 +22,9 @@ kind of policy, an agent under :mod:`minsubdt_jax.agents`).
 ``cql``                CQL(H) (Kumar et al. 2020) on the true rewards
 ``minsubdt-iql``       IQL on MinSubDT's surrogate reward (one reward, ``-min-subdominance``, at the last step)
 ``minsubdt-td3bc``     TD3+BC on the surrogate reward
+``minsubdt-iql-spread``  IQL on the surrogate reward spread over the episode: ``-min-subdominance / L`` at each of
+                       its L steps (the same undiscounted return; a discounted critic sees it at every step)
+``minsubdt-td3bc-spread``  TD3+BC on the spread surrogate reward
 ``minsubdt-cql``       CQL on the surrogate reward
 ``brac-v``             BRAC-v (Wu, Tucker & Nachum 2019) on the true rewards
 ``minsubdt-brac-v``    BRAC-v on the surrogate reward
@@ -44,11 +47,15 @@ from typing import Callable
 
 import numpy as np
 
-from .subdominance import surrogate_rewards
+from .subdominance import spread_surrogate_rewards, surrogate_rewards
 
 
 def _surrogate(data, sub, costs):
     return np.asarray(surrogate_rewards(sub.value, data.lengths, data.max_len))
+
+
+def _spread(data, sub, costs):
+    return np.asarray(spread_surrogate_rewards(sub.value, data.lengths, data.max_len))
 
 
 def _true(data, sub, costs):
@@ -154,6 +161,9 @@ METHODS = {m.name: m for m in (
     Method("cql", "CQL", "cql", "engineered", _true),
     Method("minsubdt-iql", "MinSubDT-IQL", "iql", "engineered", _surrogate, rtg_scale=None, episodic=True),
     Method("minsubdt-td3bc", "MinSubDT-TD3+BC", "td3bc", "engineered", _surrogate, episodic=True),
+    Method("minsubdt-iql-spread", "MinSubDT-IQL (spread)", "iql", "engineered", _spread, rtg_scale=None,
+           episodic=True),
+    Method("minsubdt-td3bc-spread", "MinSubDT-TD3+BC (spread)", "td3bc", "engineered", _spread, episodic=True),
     Method("minsubdt-cql", "MinSubDT-CQL", "cql", "engineered", _surrogate, episodic=True),
     Method("brac-v", "BRAC-v", "brac", "engineered", _true),
     Method("minsubdt-brac-v", "MinSubDT-BRAC-v", "brac", "engineered", _surrogate, episodic=True),

@@ -160,6 +160,25 @@ def surrogate_rewards(min_subdom, lengths, max_len: int | None = None):
     return jnp.where(last.reshape(last.shape + (1,) * (v.ndim - 1)), -v[:, None], 0.0)
 
 
+def spread_surrogate_rewards(min_subdom, lengths, max_len: int | None = None):
+    """The surrogate reward spread evenly over the trajectory: ``r'_t = -min_subdom / L`` at each of its ``L``
+    valid steps, 0 on padding; the episode's undiscounted return is ``-min_subdom``, as with
+    :func:`surrogate_rewards`, but a discounted critic sees it at every step rather than ``gamma^(L-1-t)`` of it.
+
+    Args:
+      min_subdom: ``[N]`` minimum subdominance of each trajectory (eq. 2).
+      lengths: ``[N]`` int, valid steps per trajectory (>= 1).
+      max_len: padded time length T; defaults to ``max(lengths)``.
+    Returns:
+      ``[N, T]`` rewards.
+    """
+    lengths = jnp.asarray(lengths)
+    if max_len is None:
+        max_len = int(np.max(np.asarray(lengths)))
+    valid = jnp.arange(max_len)[None, :] < lengths[:, None]
+    return jnp.where(valid, -jnp.asarray(min_subdom)[:, None] / lengths[:, None], 0.0)
+
+
 def returns_to_go(rewards, lengths):
     """``R_t = sum_{t' >= t} r_t'`` within each trajectory, 0 on padding.
 
