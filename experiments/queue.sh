@@ -48,6 +48,10 @@ CURVE_CELLS=("walker medium minsubdt-iql,minsubdt-iql-spread 60000" "hopper medi
              "walker medium minsubdt-td3bc,minsubdt-td3bc-spread 100000"
              "hopper medium minsubdt-td3bc,minsubdt-td3bc-spread 100000")
 CURVE_FLAGS="--model cpu --eval-every 5000 --chunk-steps 1000 --episodes 30 --seeds 3 --ema 0.999"
+# each peer cell: "agent env dataset [flags]" (experiments/peer_critics.py; 3 seeds each side at study unless said)
+PEER_CELLS=("td3bc hopper medium" "iql hopper medium" "iql walker medium-replay" "td3bc walker medium-replay"
+            "cql hopper medium --steps 20000 --seeds 2 --eval-every 5000"
+            "bear hopper medium --steps 30000 --seeds 2 --eval-every 5000")
 FRONT_CELLS=("walker medium-replay" "halfcheetah medium-replay" "walker medium")
 
 table() {
@@ -73,6 +77,27 @@ curves() {
         commit "Curves (issue 72, the surrogate reward under a critic): $*; resume: bash experiments/queue.sh curves" \
             experiments/results/curves experiments/results/curves.md
     done
+}
+
+peers() {
+    wait_for "experiments/peer_critics.py run"
+    [ -x .venv-peer/bin/python ] || { python3 -m venv .venv-peer && .venv-peer/bin/pip install -q -e . d3rlpy==2.8.1 \
+        torch; } || { log "peer venv rc=$?"; return 1; }
+    for cell in "${PEER_CELLS[@]}"; do
+        set -- $cell
+        log "peer $*"
+        .venv-peer/bin/python experiments/peer_critics.py run --agent "$1" --env "$2" --dataset "$3" "${@:4}" \
+            || { log "peer $* rc=$?"; return 1; }
+        python experiments/peer_critics.py report > /dev/null
+        commit "Peer critics (issue 72): $*; resume: bash experiments/queue.sh peers" \
+            experiments/results/peer_critics experiments/results/peer_critics.md
+    done
+    for agent in td3bc iql cql bear; do
+        .venv-peer/bin/python experiments/peer_critics.py time --agent "$agent" --time-steps 300 || return 1
+    done
+    python experiments/peer_critics.py report > /dev/null
+    commit "Peer critics (issue 72): step times; resume: bash experiments/queue.sh peers" \
+        experiments/results/peer_critics experiments/results/peer_critics.md
 }
 
 front() {
@@ -131,8 +156,8 @@ PY
 
 {  # parsed whole before it runs, and exits: an edit of this file does not reach a lane that is running
     case "${1:-}" in
-        table | curves | front | status) "$1" ;;
-        *) echo "usage: bash experiments/queue.sh table|curves|front|status" >&2; exit 2 ;;
+        table | curves | peers | front | status) "$1" ;;
+        *) echo "usage: bash experiments/queue.sh table|curves|peers|front|status" >&2; exit 2 ;;
     esac
     exit
 }
