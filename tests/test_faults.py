@@ -240,3 +240,28 @@ def test_the_progress_bar_moves_within_a_chunk_and_the_pieces_train_the_same_ste
     assert np.array_equal(np.asarray(joined), np.asarray(losses))
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(state)):
         assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.slow
+def test_a_recording_onto_a_full_disk_is_one_error_line_and_leaves_no_file(tmp_path):
+    """A disk that filled up mid-write crashed the interpreter (exit 139: h5py's close wrote again into the full
+    file after a screen of OSError tracebacks) and left a ``*.tmp`` in the cache. A file-size limit (``ulimit -f``,
+    EFBIG, as a full disk's ENOSPC) stands in for the full disk: one ``error:`` line, exit 2, no dataset and no
+    temporary file."""
+    import resource
+    import subprocess
+    import sys
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1 << 20, 1 << 20))  # 1 MiB; the recording is ~2 MiB
+
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path), JAX_ENABLE_COMPILATION_CACHE="false")
+    p = subprocess.run([sys.executable, "-m", "minsubdt_jax.data", "--env", "hopper", "--dataset", "random",
+                        "--transitions", "20000"], env=env, capture_output=True, text=True, preexec_fn=limit,
+                       timeout=300)
+    assert p.returncode == 2, p.stderr[-2000:]
+    lines = [x for x in p.stderr.strip().splitlines() if not x.startswith("hopper/random:")]  # its progress bar
+    assert len(lines) == 1 and lines[0].startswith("error: File too large: ") and "hopper-random" in lines[0], \
+        p.stderr[-2000:]
+    left = [f for _, _, fs in os.walk(tmp_path) for f in fs if f.endswith((".hdf5", ".tmp"))]
+    assert left == []

@@ -140,3 +140,45 @@ def test_load_policy_acts_as_the_batched_rollout_does(vec_run):
         a = policy(o)
         assert a.shape == (3,) and np.all(np.abs(a) <= 1)
         o, *_ = env.step(a)
+
+
+def test_evaluate_without_a_target_uses_the_runs_own(vec_run, capsys):
+    """``--target`` was required: re-scoring a run at its own target (the one its final evaluation used) now needs
+    no flag, and rolls out the run's own episodes."""
+    from minsubdt_jax.evaluate import main
+
+    assert main([vec_run, "--episodes", "3"]) == 0
+    assert "minsubdt-vec at x_velocity=0,energy@lived=0" in capsys.readouterr().out
+    with open(os.path.join(vec_run, "evaluations", "minsubdt-vec", "x_velocity=0,energy@lived=0.json")) as f:
+        ev = json.load(f)
+    with open(os.path.join(vec_run, "results.json")) as f:
+        assert ev["eval"]["returns"] == json.load(f)["eval"]["returns"]
+
+
+def test_evaluate_refuses_an_episode_count_that_cannot_fit_in_memory(vec_run, capsys):
+    """``--episodes 100000000`` was killed by the kernel (exit 137) while it allocated the rollout; it is one error
+    line that names the memory it would need, and writes nothing."""
+    from minsubdt_jax.evaluate import main
+
+    before = sorted(os.listdir(vec_run))
+    assert main([vec_run, "--episodes", "100000000"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: --episodes 100000000") and "GiB" in err and err.count("\n") == 1, err
+    assert sorted(os.listdir(vec_run)) == before
+
+
+def test_load_policy_says_what_it_expected(vec_run):
+    """Fed an observation of the wrong shape, ``load_policy``'s policy failed deep inside JAX; fed NaNs it returned
+    NaN actions. Both are one ValueError that says what it takes; a bad target speaks of the argument."""
+    from minsubdt_jax.evaluate import load_policy
+
+    policy = load_policy(vec_run)
+    with pytest.raises(ValueError, match=r"an observation of shape \(11,\), got \(5,\)"):
+        policy(np.zeros(5))
+    with pytest.raises(ValueError, match="not finite"):
+        policy(np.full(11, np.nan))
+    with pytest.raises(ValueError, match="reward.*not finite"):
+        policy(np.zeros(11), float("inf"))
+    with pytest.raises(ValueError, match=r"^target: 'energy' is not a metric"):
+        load_policy(vec_run, target={"energy": 0.5})
+    assert policy(np.zeros(11)).shape == (3,)

@@ -40,7 +40,7 @@ from .envs import resolve_physics
 from .evaluation import across_seeds
 from .flags import load_fields
 from .methods import get_method
-from .parallel import make_mesh
+from .parallel import available_bytes, make_mesh
 from .pipeline import load
 from .program import evaluate_models, program_models
 from .rundir import DATASET_FILE, METRICS_FILE, exit_code, json_text, write_atomic
@@ -97,16 +97,16 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
     return LoadedRun(cfg, agent, models, eval_params(state), per_model, recorded["dynamics"], int(step))
 
 
-def parse_target(text, method, prep, beta: float):
+def parse_target(text, method, prep, beta: float, flag: str = "--target"):
     """The return token for ``text`` (``"name=v,name=v"``, a ``{name: v}`` mapping, or one number for a method
     with one return token) under ``method``: ``[K]`` for a vector method (``-v`` per metric, the default where a
     metric is left out), else a float. One ValueError on an unknown metric, a repeated one, a value out of range or
-    not a number."""
+    not a number, naming ``flag`` (the library's ``target`` argument, or the command's ``--target``)."""
     names = [m.name for m in prep.metrics]
     if not method.vector:
-        return _number(text, "--target")
+        return _number(text, flag)
     if not isinstance(text, dict) and not all("=" in p for p in str(text).split(",")):
-        raise ValueError(f"--target {text}: {method.name} takes name=value per metric (comma-separated), for some of "
+        raise ValueError(f"{flag} {text}: {method.name} takes name=value per metric (comma-separated), for some of "
                          f"{names}")
     pairs = list(text.items()) if isinstance(text, dict) else [p.rpartition("=")[::2] for p in str(text).split(",")]
     bound = beta if method.target_bound == "beta" else 1.0
@@ -114,13 +114,13 @@ def parse_target(text, method, prep, beta: float):
     seen = set()
     for name, v in pairs:
         if name not in names or name in seen:
-            raise ValueError(f"--target: {name!r} is {'repeated' if name in seen else 'not a metric of the run'}; "
+            raise ValueError(f"{flag}: {name!r} is {'repeated' if name in seen else 'not a metric of the run'}; "
                              f"give name=value for some of {names}")
         seen.add(name)
-        v = _number(v, f"--target {name}")
+        v = _number(v, f"{flag} {name}")
         if not 0.0 <= v <= bound:
             what = "eq. 2's per-metric term, 0 to the margin beta" if method.target_bound == "beta" else "a cost in [0, 1]"
-            raise ValueError(f"--target {name}={v:g}: {method.name}'s target is {what} ({bound:g})")
+            raise ValueError(f"{flag} {name}={v:g}: {method.name}'s target is {what} ({bound:g})")
         token[names.index(name)] = -v
     return token
 
@@ -147,17 +147,20 @@ def _select(run: LoadedRun, method: str | None, seed: int | None = None) -> list
     return idx
 
 
-def evaluate_run(run_dir: str, target, episodes: int = 100, method: str | None = None, metrics=None,
+def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | None = None, metrics=None,
                  write: bool = True, run: LoadedRun | None = None) -> dict:
     """Roll out every seed of ``method`` (the run's one, by default) in ``run_dir`` conditioned on ``target``
-    (:func:`parse_target`) for ``episodes`` episodes each; the result (per seed and across seeds, as
-    ``results.json``'s) is written to ``RUN_DIR/evaluations/<method>/<target>.json`` and returned."""
+    (:func:`parse_target`; None: the run's own, that of its final evaluation) for ``episodes`` episodes each; the
+    result (per seed and across seeds, as ``results.json``'s) is written to
+    ``RUN_DIR/evaluations/<method>/<target>.json`` and returned."""
     run = run or load_run(run_dir, metrics)
     idx = _select(run, method)
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
+    check_rollout_memory(run.per_model[idx[0]], len(idx), episodes, run.cfg.episode_length)
     m = run.models[idx[0]].method
-    token = parse_target(target, m, run.per_model[idx[0]], run.cfg.beta)
+    token = (run.per_model[idx[0]].target_return if target is None
+             else parse_target(target, m, run.per_model[idx[0]], run.cfg.beta))
     per_model = [dataclasses.replace(run.per_model[i], target_return=token) for i in idx]
     mesh = make_mesh(run.cfg.devices, batch_size_of(m.agent, run.cfg))
     params = jax.tree.map(lambda x: x[np.asarray(idx)], run.params)
@@ -172,6 +175,17 @@ def evaluate_run(run_dir: str, target, episodes: int = 100, method: str | None =
         os.makedirs(os.path.join(run_dir, "evaluations", m.name), exist_ok=True)
         write_atomic(os.path.join(run_dir, "evaluations", m.name, label + ".json"), json_text(out, indent=2))
     return out
+
+
+def check_rollout_memory(prep, n_models: int, episodes: int, horizon: int) -> None:
+    """An episode count whose rollouts cannot fit in memory is one error before anything runs (it was an
+    out-of-memory kill): the episodes' observations, actions and rewards, ``[models, episodes, horizon, ...]``
+    float32, are kept for scoring."""
+    need = 4 * n_models * episodes * horizon * (prep.state_mean.shape[-1] + prep.source.data.actions.shape[-1] + 4)
+    have = available_bytes()
+    if have is not None and need > have:
+        raise ValueError(f"--episodes {episodes}: {n_models} model(s) x {episodes} episodes of {horizon} steps need "
+                         f"~{need / 2 ** 30:,.1f} GiB, more than the {have / 2 ** 30:.1f} GiB available")
 
 
 class Policy:
@@ -193,8 +207,18 @@ class Policy:
         self.carry, self.t, self.key = self.agent.initial_carry(1), 0, jax.random.PRNGKey(0)
 
     def __call__(self, obs, reward: float = 0.0) -> np.ndarray:
+        """The action ``[act]`` for ``obs [obs_dim]`` after ``reward``; ValueError on any other shape or a value
+        that is not finite (the model would answer NaN)."""
+        want = tuple(self.inputs.state_mean.shape)
+        obs = np.asarray(obs, np.float32)
+        if obs.shape != want:
+            raise ValueError(f"the policy takes an observation of shape {want}, got {obs.shape}")
+        if not np.isfinite(obs).all():
+            raise ValueError(f"the observation is not finite: {obs}")
+        if not np.isfinite(np.float32(reward)):
+            raise ValueError(f"the reward is not finite: {reward}")
         self.key, k = jax.random.split(self.key)
-        obs = jnp.asarray(obs, jnp.float32)[None]
+        obs = jnp.asarray(obs)[None]
         self.carry, action = self._act(self.inputs, self.carry, obs, jnp.float32(reward)[None], jnp.int32(self.t), k)
         self.t += 1
         return np.asarray(action[0])
@@ -207,15 +231,15 @@ def load_policy(run_dir: str, target=None, method: str | None = None, seed: int 
     run = load_run(run_dir, metrics)
     i = _select(run, method, seed)[0]
     m, p = run.models[i].method, run.per_model[i]
-    return Policy(run, i, p.target_return if target is None else parse_target(target, m, p, run.cfg.beta))
+    return Policy(run, i, p.target_return if target is None else parse_target(target, m, p, run.cfg.beta, "target"))
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m minsubdt_jax.evaluate", description="Roll out a trained run's "
                                  "models at a target of one's choosing and write the results beside the run.")
     ap.add_argument("run_dir", help="a run directory (python -m minsubdt_jax.train ... --out RUN_DIR)")
-    ap.add_argument("--target", required=True, help="name=value per cost metric (comma-separated) for minsubdt-vec "
-                    "and dt-vec; one number for a method with one return token")
+    ap.add_argument("--target", help="name=value per cost metric (comma-separated) for minsubdt-vec and dt-vec; one "
+                    "number for a method with one return token (default: the run's own target)")
     ap.add_argument("--episodes", type=int, default=100, help="episodes per seed (100)")
     ap.add_argument("--method", help="the method to evaluate, for a run that trained several")
     a = ap.parse_args(argv)
@@ -223,7 +247,9 @@ def main(argv=None) -> int:
     def run():
         out = evaluate_run(a.run_dir, a.target, a.episodes, a.method)
         e = out["eval"]
-        print(f"{out['method']} at {a.target}: normalised {e['normalized_score_mean']:.1f}, costs "
+        at = (",".join(f"{k}={v:g}" for k, v in out["target"].items()) if isinstance(out["target"], dict)
+              else f"{out['target']:g}")
+        print(f"{out['method']} at {at}: normalised {e['normalized_score_mean']:.1f}, costs "
               + ", ".join(f"{k} {v:.3f}" for k, v in e["costs_mean"].items()) + f" ({len(out['eval_per_seed'])} "
               f"seed(s) x {a.episodes} episodes); wrote {a.run_dir}/evaluations/{out['method']}/")
     return exit_code(run)

@@ -11,6 +11,7 @@ from the time limit (``horizon``) and the load says so (:attr:`DatasetFile.timeo
 
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import dataclass
 
@@ -102,7 +103,9 @@ def save_d4rl(dataset: Trajectories, path, infos: dict[str, np.ndarray] | None =
     os.makedirs(folder, exist_ok=True)
     flat = dataset.to_flat()
     digest = dataset.sha256()
-    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+    # built in memory, then written by Python: a write that fails (a full disk) is one OSError here and the
+    # temporary file is removed; h5py writing into the file itself wrote again from its close and crashed (exit 139)
+    with h5py.File(io.BytesIO(), "w") as f:
         for k, v in flat.items():
             f.create_dataset(k, data=v, compression="gzip", compression_opts=1)
         for k, v in (infos or {}).items():
@@ -113,6 +116,13 @@ def save_d4rl(dataset: Trajectories, path, infos: dict[str, np.ndarray] | None =
         for name, value in (("env", env), ("dynamics", dynamics), ("physics", physics)):
             if value is not None:
                 f.attrs[name] = value
+        f.flush()
+        image = f.id.get_file_image()
+    try:
+        with atomic_path(path) as tmp, open(tmp, "wb") as out:
+            out.write(image)
+    except OSError as e:  # what the system said, about the file the user asked for
+        raise OSError(e.errno, e.strerror, path) from None
     return digest
 
 
