@@ -11,7 +11,8 @@ import pytest
 from minsubdt_jax.data.dataset import from_padded
 from minsubdt_jax.envs import check_dynamics, dynamics_report, env_spec, make_rollout, random_policy, resolve_physics
 
-GYM_IDS = {"hopper": "Hopper-v4", "walker": "Walker2d-v4", "halfcheetah": "HalfCheetah-v4"}
+GYM_IDS = {"hopper": "Hopper-{}", "walker": "Walker2d-{}", "halfcheetah": "HalfCheetah-{}"}
+GYM_VERSIONS = {"d4rl": "v4", "v5": "v5"}  # the gymnasium env each of our dynamics reproduces
 
 
 @functools.lru_cache(maxsize=None)
@@ -43,7 +44,8 @@ def test_mjx_env_steps_as_brax_own_env():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("env, dynamics", [("hopper", "brax"), ("walker", "brax"), ("hopper", "d4rl")])
+@pytest.mark.parametrize("env, dynamics", [("hopper", "brax"), ("walker", "brax"), ("hopper", "d4rl"),
+                                           ("hopper", "v5"), ("walker", "v5")])
 def test_c_mujoco_and_mjx_roll_out_the_same_episodes(env, dynamics):
     """Same model, same resets, same actions (the backends draw both from the same keys): 200 steps of random
     actions end at the same steps, with returns within 1e-3 relative and identical reset observations. The d4rl
@@ -69,14 +71,16 @@ def test_halfcheetah_agrees_in_statistics():
     np.testing.assert_allclose(c.rewards[:, :10], mjx.rewards[:, :10], rtol=1e-3, atol=1e-3)  # before chaos
 
 
+@pytest.mark.parametrize("dynamics", ["d4rl", "v5"])
 @pytest.mark.parametrize("env", ["hopper", "walker", "halfcheetah"])
-def test_d4rl_dynamics_are_gymnasium_v4(env):
-    """The d4rl rules on C MuJoCo against gymnasium's own ``Hopper-v4``/``Walker2d-v4``/``HalfCheetah-v4``: each
-    recorded episode replayed in gymnasium from its recorded reset state with its recorded actions gives the same
-    observations, rewards and termination, over >= 200 steps per env."""
+def test_gym_dynamics_are_gymnasiums_own_envs(env, dynamics):
+    """The d4rl and v5 rules on C MuJoCo against gymnasium's own ``Hopper``/``Walker2d``/``HalfCheetah`` ``-v4`` and
+    ``-v5``: each recorded episode replayed in gymnasium from its recorded reset state with its recorded actions
+    gives the same observations, rewards (v5: no healthy reward on the terminal step) and termination, over >= 200
+    steps per env."""
     gym = pytest.importorskip("gymnasium")
-    ro = _random_rollout(env, "mujoco", "d4rl", episodes=16 if env != "halfcheetah" else 1, horizon=250)
-    g = gym.make(GYM_IDS[env]).unwrapped
+    ro = _random_rollout(env, "mujoco", dynamics, episodes=16 if env != "halfcheetah" else 1, horizon=250)
+    g = gym.make(GYM_IDS[env].format(GYM_VERSIONS[dynamics])).unwrapped
     g.reset(seed=0)
     steps = 0
     for i in range(len(ro.lengths)):
@@ -154,3 +158,25 @@ def test_a_gymnasium_v4_file_trains_and_is_evaluated_in_d4rl_dynamics(tmp_path):
     ev = res["eval"]
     np.testing.assert_allclose(ev["normalized_score_mean"], np.mean(100 * (np.array(ev["returns"]) - lo) / (hi - lo)),
                                rtol=1e-6)
+
+
+def test_check_dynamics_tells_gymnasium_v5_from_v4():
+    """Hopper's v4 and v5 step the same states; only v5's terminal step lacks the healthy reward. Episodes recorded
+    in each replay equally well in both, and the terminal rewards name the one that made them; walker's v5 feet
+    (friction 1.9) set its states apart from v4's outright."""
+    for dyn in ("d4rl", "v5"):
+        ro = _random_rollout("hopper", "mujoco", dyn, episodes=16, horizon=100, seed=1)
+        data = from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
+        mask = data.valid_mask()
+        rep = dynamics_report("hopper", data, ro.qpos[:, :data.max_len][mask], ro.qvel[:, :data.max_len][mask],
+                              transitions=300)
+        assert rep["best"] == dyn and rep["same_states"] == ["d4rl", "v5"], rep
+        other = "v5" if dyn == "d4rl" else "d4rl"
+        assert rep["dynamics"][dyn]["terminal_reward_error"] < 1e-4 < 0.9 < rep["dynamics"][other][
+            "terminal_reward_error"], rep
+    ro = _random_rollout("walker", "mujoco", "v5", episodes=16, horizon=100, seed=1)
+    data = from_padded(ro.observations, ro.actions, ro.rewards, ro.lengths, ro.terminated)
+    mask = data.valid_mask()
+    rep = dynamics_report("walker", data, ro.qpos[:, :data.max_len][mask], ro.qvel[:, :data.max_len][mask],
+                          transitions=300)
+    assert rep["best"] == "v5" and "same_states" not in rep, rep

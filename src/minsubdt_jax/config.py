@@ -23,7 +23,8 @@ class Config:
     # in one program (one env's: every model draws only its own dataset's episodes)
     dataset: str = "medium"
     # minsubdt | minsubdt-learned | dt | dt-total | dt-tied | minsubdt-vec | dt-vec | bc | bc-mlp | iql | td3bc | cql |
-    # brac-v | bear | awr | minsubdt-iql | minsubdt-td3bc | minsubdt-cql | minsubdt-brac-v | minsubdt-bear | minsubdt-awr: see
+    # brac-v | bear | awr | minsubdt-iql | minsubdt-td3bc | minsubdt-iql-spread | minsubdt-td3bc-spread | minsubdt-cql |
+    # minsubdt-brac-v | minsubdt-bear | minsubdt-awr: see
     # minsubdt_jax.methods (--returns subdom|learned|true|none still names the first four). Several,
     # comma-separated, train in one program (they must share an agent)
     method: str = "minsubdt"
@@ -31,9 +32,9 @@ class Config:
     seeds: int = 1  # train seeds seed, seed+1, ..., seed+seeds-1 as one program (vmapped in one jitted step)
     dataset_seed: int = 0  # seed of a recorded named dataset (the data stays fixed across training seeds)
     steps: int = 3000  # gradient steps
-    # smoke (seconds, tests) | cpu (<= 15 min here) | study (chosen from score curves: docs/convergence.md) | paper (the DT
-    # paper's model, 100k steps)
-    preset: str = "cpu"
+    # quick (the default: a first model in ~4 min on 2 cores) | smoke (seconds, tests) | cpu (<= 15 min here) | study
+    # (Table 1's, chosen from score curves: docs/convergence.md) | paper (the DT paper's model, 100k steps)
+    preset: str = "quick"
     out: str | None = None  # run directory; default runs/{env}-{dataset}-{returns}-s{seed}
     # DT (DT paper: K=20, 128, 3 layers, 1 head, dropout 0.1)
     context_len: int = 20  # K, the context length in timesteps
@@ -144,6 +145,12 @@ PRESETS = {
     # trains and evaluates one dataset in <= 15 min on a 2-core CPU (an evaluation every 500 steps: a score curve)
     "cpu": Config(preset="cpu", steps=3000, embed_dim=64, n_layers=2, warmup_steps=500, learning_rate=3e-4,
                   chunk_steps=500, eval_episodes=10, eval_every=500, cost_steps=500),
+    # the default: study's recipe over 3k steps (a peak rate of 1e-3, warm-up 300, cosine to 0 at 3k, EMA 0.999),
+    # evaluated on 30 episodes: a first model that has learned (walker medium: at or above the data's own average,
+    # README), recording included in ~4 min on 2 idle cores
+    "quick": Config(preset="quick", steps=3000, embed_dim=64, n_layers=2, warmup_steps=300, learning_rate=1e-3,
+                    lr_schedule="cosine", ema_decay=0.999, chunk_steps=500, eval_episodes=30, eval_every=0,
+                    cost_steps=500),
     # chosen from score curves to be affordable on a 2-core CPU (issue 25; docs/convergence.md says which cells
     # have flattened at it): the cpu model at a peak rate of 1e-3 (3e-4 left DT rising on two cells), a cosine
     # decay to 0 over 10k steps and an average of the parameters (EMA 0.999), evaluated on 100 episodes; ~5-8 min

@@ -66,14 +66,15 @@ class EvalResult:
 def score_episodes(env: str, observations, lengths, rewards, *, terminated, horizon: int, demo_costs=None, beta=1.0,
                    alpha_max=None, learned=None, demo_features=None, dynamics: str = "brax", actions=None,
                    metrics: tuple[CostMetric, ...] | None = None,
-                   extra_metrics: tuple[CostMetric, ...] = ()) -> EvalResult:
+                   extra_metrics: tuple[CostMetric, ...] = (), references=None) -> EvalResult:
     """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored),
     ``terminated [n]`` (ended by a fall, else by the horizon: costs treat the two apart, :mod:`minsubdt_jax.costs`).
 
     With ``demo_costs [M, K]`` (the dataset's engineered features) each episode's min-subdominance (eq. 2, margin
     ``beta``, cap ``alpha_max``) against them is computed, and whether it beats their mean on every feature.
     With ``learned`` (a :class:`~minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']``, the
-    min-subdominance on the learned features too. Normalised with the references of ``dynamics``. The cost
+    min-subdominance on the learned features too. Normalised with ``references``
+    (:class:`~minsubdt_jax.references.References`: a dataset's own), else those of ``dynamics``. The cost
     features are ``metrics``' (default: the env's, :func:`~minsubdt_jax.costs.cost_metrics`), from the
     observations and ``actions [n, T, act]``; ``extra_metrics`` (``--eval-costs``) add columns that are reported
     only: min-subdominance and beating the mean demo use ``metrics``' columns, which come first.
@@ -86,7 +87,8 @@ def score_episodes(env: str, observations, lengths, rewards, *, terminated, hori
     extra = tuple(m for m in extra_metrics if m.name not in {n.name for n in metrics})
     costs = np.asarray(trajectory_costs(metrics + extra, observations, lengths, horizon, terminated=terminated,
                                         actions=actions))
-    ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized_score(env, returns, dynamics), costs=costs,
+    normalized = normalized_score(env, returns, dynamics) if references is None else references.normalize(returns)
+    ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized, costs=costs,
                     cost_names=tuple(m.name for m in metrics + extra))
     if demo_costs is not None:
         demo_costs, own = np.asarray(demo_costs), costs[:, :k]
@@ -123,11 +125,12 @@ def episodes_to_run(num_episodes: int, mesh=None) -> int:
 
 def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int, seeds, demo_costs, beta=1.0,
                     alpha_max=None, learned=None, demo_features=None, mesh=None, physics: str = "auto",
-                    dynamics: str = "brax", threads: int = 0, metrics=None, extra_metrics=()) -> list[EvalResult]:
+                    dynamics: str = "brax", threads: int = 0, metrics=None, extra_metrics=(),
+                    references=None) -> list[EvalResult]:
     """Roll out ``agent``'s policy for S models (``inputs [S, ...]``, :class:`~minsubdt_jax.agents.base.PolicyInputs`)
     and score each seed's first ``num_episodes`` episodes against the demos (:func:`score_episodes`).
     ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed). The episodes run in
-    ``physics`` under ``dynamics`` and are normalised with that dynamics' references; ``metrics`` are the demo
+    ``physics`` under ``dynamics`` and are normalised with ``references`` (else that dynamics'); ``metrics`` are the demo
     costs' (default: the env's)."""
     carry = agent.initial_carry(episodes_to_run(num_episodes, mesh))
     ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
@@ -137,7 +140,8 @@ def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int,
                            horizon=horizon, demo_costs=demo_costs, beta=beta, alpha_max=alpha_max,
                            learned=None if learned is None else learned[i],
                            demo_features=None if demo_features is None else demo_features[i], dynamics=dynamics,
-                           actions=ro.actions[i, :num_episodes], metrics=metrics, extra_metrics=extra_metrics)
+                           actions=ro.actions[i, :num_episodes], metrics=metrics, extra_metrics=extra_metrics,
+                           references=references)
             for i in range(len(seeds))]
 
 

@@ -12,7 +12,7 @@ from .costs import CostMetric, cost_metrics, spearman, trajectory_costs
 from .data import DatasetFile, SamplerData, resolve_dataset, sampler_data
 from .learned_costs import LearnedCostConfig, LearnedCosts, train_learned_costs
 from .methods import Method
-from .references import normalized_score
+from .references import references_for
 from .subdominance import min_subdominance, returns_to_go
 
 
@@ -55,7 +55,8 @@ class Prepared:
             "dropped_transitions": self.source.dropped_transitions,
             "episodes": data.num_trajectories, "transitions": data.num_transitions,
             "return_mean": float(data.returns.mean()), "return_std": float(data.returns.std()),
-            "normalized_score_mean": float(normalized_score(env, data.returns, self.dynamics).mean()),
+            "normalized_score_mean": float(references_for(env, self.dynamics, self.source.references)
+                                           .normalize(data.returns).mean()),
             "costs_mean": dict(zip((m.name for m in self.metrics), map(float, self.costs.mean(0)))),
             "cost_metrics": [m.record() for m in self.metrics],
             "min_subdominance_mean": float(ms.mean()), "min_subdominance_std": float(ms.std()),

@@ -22,6 +22,7 @@ from .evaluation import evaluate_policy
 from .methods import Method
 from .parallel import available_bytes, replicate
 from .pipeline import Prepared
+from .references import references_for
 
 
 @dataclass(frozen=True)
@@ -122,7 +123,8 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
                           demo_features=[p.features for p in per_model] if learned else None, mesh=mesh,
                           physics=physics, dynamics=dynamics, threads=cfg.physics_threads,
                           metrics=per_model[0].metrics,
-                          extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else ())
+                          extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else (),
+                          references=references_for(cfg.env, dynamics, per_model[0].source.references))
     return [dict(ev.summary(), **mo.record(), target_return=np.asarray(p.target_return).tolist())
             for ev, mo, p in zip(evs, models, per_model)]
 

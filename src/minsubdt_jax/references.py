@@ -5,12 +5,16 @@ episodes ran in (:mod:`minsubdt_jax.envs.rules`):
   committed with the behaviour policies (``behavior/snapshots/{env}/manifest.json``). D4RL's references do not apply
   to these envs (``docs/FIDELITY.md``);
 * ``d4rl``: D4RL's own references (``d4rl/infos.py``: ``REF_MIN_SCORE`` / ``REF_MAX_SCORE``), for data and
-  evaluation in gym's dynamics.
+  evaluation in gym's dynamics;
+* ``v5``: D4RL's too, unless the dataset brings its own (a Minari dataset's ``ref_min_score`` /
+  ``ref_max_score``, which win over the dynamics' wherever a dataset has them: :func:`references_for`).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from dataclasses import dataclass
 
 from .behavior.snapshots import load_manifest
 from .envs import env_spec
@@ -18,6 +22,7 @@ from .envs import env_spec
 REFERENCE_SOURCES = {
     "brax": "MJX: uniform-random policy and the committed SAC expert, stochastic, 1000-step episodes",
     "d4rl": "D4RL's references (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE)",
+    "v5": "D4RL's references (d4rl/infos.py REF_MIN_SCORE / REF_MAX_SCORE), for want of the dataset's own",
 }
 
 
@@ -31,6 +36,8 @@ def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:
     spec = env_spec(env)
     if dynamics in spec.references:  # the env's record: d4rl/infos.py's for D4RL's envs (every dataset of an env)
         return tuple(spec.references[dynamics][:2])
+    if dynamics == "v5" and "d4rl" in spec.references:  # gym's v5 envs score on the scale of v4's
+        return tuple(spec.references["d4rl"][:2])
     if dynamics != "brax":
         raise ValueError(f"no references for {spec.name} in dynamics {dynamics!r}; it has "
                          f"{sorted(set(spec.references) | {'brax'})}")
@@ -41,7 +48,7 @@ def reference_returns(env: str, dynamics: str = "brax") -> tuple[float, float]:
 def reference_source(env: str, dynamics: str = "brax") -> str:
     """Where :func:`reference_returns`' numbers come from: the env record's own words, else the brax manifests'."""
     own = env_spec(env).references.get(dynamics)
-    return own[2] if own is not None else REFERENCE_SOURCES[dynamics]
+    return own[2] if own is not None else REFERENCE_SOURCES.get(dynamics, "")
 
 
 def normalized_score(env: str, returns, dynamics: str = "brax"):
@@ -52,6 +59,32 @@ def normalized_score(env: str, returns, dynamics: str = "brax"):
 
 def references_record(env: str, dynamics: str = "brax") -> dict:
     """What ``results.json`` says about the references a score used."""
+    return references_for(env, dynamics).record()
+
+
+@dataclass(frozen=True)
+class References:
+    """The references one run scores with: ``random`` and ``expert`` returns, where they come from, and the
+    dynamics they belong to."""
+
+    random: float
+    expert: float
+    source: str
+    dynamics: str
+
+    def normalize(self, returns):
+        return 100.0 * (np.asarray(returns, np.float64) - self.random) / (self.expert - self.random)
+
+    def record(self) -> dict:
+        """What ``results.json`` says about them."""
+        return {"dynamics": self.dynamics, "random": self.random, "expert": self.expert, "source": self.source,
+                "scale": SCALE}
+
+
+def references_for(env: str, dynamics: str = "brax", own: tuple | None = None) -> References:
+    """The references of data in ``dynamics``: the dataset's ``own`` ``(random, expert, source)`` where it brings
+    them (a Minari dataset's metadata), else the dynamics' (:func:`reference_returns`)."""
+    if own is not None:
+        return References(float(own[0]), float(own[1]), own[2], dynamics)
     lo, hi = reference_returns(env, dynamics)
-    return {"dynamics": dynamics, "random": lo, "expert": hi, "source": reference_source(env, dynamics),
-            "scale": SCALE}
+    return References(lo, hi, reference_source(env, dynamics), dynamics)

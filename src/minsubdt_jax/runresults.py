@@ -14,7 +14,7 @@ from .agents.dt.networks import DT_REVISION
 from .envs import physics_record
 from .evaluation import across_seeds
 from .program import eval_record, evaluate_models
-from .references import REFERENCE_SOURCES, references_record
+from .references import references_for
 from .rundir import json_text, plot_learning_curve, write_atomic
 from .runsetup import RunPlan
 
@@ -45,7 +45,7 @@ def finish_run(run: RunPlan, agent, state, step: int, start: int, seconds: float
     summaries = {id(p): p.summary(cfg.env) for p in preps.values()}  # once per prepared data, not per model
     own = [summaries[id(p)] for p in per_model]
     results = {"config": dataclasses.asdict(cfg), "dataset": own[0],
-               "references": references_record(cfg.env, run.dynamics),
+               "references": references_for(cfg.env, run.dynamics, run.sources[0].references).record(),
                "physics": {**physics_record(run.physics, run.dynamics, cfg.physics_threads),
                            "dynamics_from": run.dynamics_how},
                "platform": platform(), "seeds": list(range(cfg.seed, cfg.seed + cfg.seeds)),
@@ -91,7 +91,7 @@ def _final_eval(run: RunPlan, agent, state, step: int, per_model, own: list, res
                 else f"{cfg.seeds} seeds x {cfg.eval_episodes} episodes")
         print(f"eval {name}: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
               f"{e['normalized_score_mean']:.1f} ± {e['normalized_score_std']:.1f} over {over} "
-              f"({REFERENCE_SOURCES[run.dynamics]}), min-subdominance {e['min_subdominance_mean']:.3f} "
+              f"({references_for(cfg.env, run.dynamics, run.sources[0].references).source}), min-subdominance {e['min_subdominance_mean']:.3f} "
               f"(dataset {demo['min_subdominance_mean']:.3f})")
         demo = demo["costs_mean"]
         print("  costs (lower is better; demos' mean): " + ", ".join(

@@ -38,6 +38,8 @@ class DatasetFile:
         written before these were recorded name neither, and are ``brax`` dynamics in MJX), else ``None``.
       timeouts_inferred: the file had no ``timeouts`` (D4RL v0); they were inferred from the horizon.
       dropped_transitions: transitions after the file's last episode end (an unfinished episode), not loaded.
+      references: ``(random, expert, source)`` returns of the dataset's own (a Minari dataset's metadata), which its
+        scores normalise with instead of the dynamics' (:func:`minsubdt_jax.references.references_for`), else None.
     """
 
     data: Trajectories
@@ -48,6 +50,7 @@ class DatasetFile:
     dropped_transitions: int = 0
     dynamics: str | None = None
     physics: str | None = None
+    references: tuple | None = None
 
 
 def open_d4rl(path, horizon: int = 1000) -> DatasetFile:
@@ -149,10 +152,10 @@ def file_dynamics(f: DatasetFile, env: str, dynamics: str | None = None) -> tupl
     if dynamics is not None:
         return check_dynamics_name(dynamics), {"how": "given"}
     if f.dynamics is not None:
-        return f.dynamics, {"how": "recorded in the file"}
-    if f.path.startswith("minari:"):
-        raise DatasetError(f"{f.path} names no dynamics (it was not exported by minsubdt-jax): pass --dynamics brax or "
-                           f"d4rl (Minari's own MuJoCo datasets are gymnasium v5, which is neither)")
+        return f.dynamics, {"how": "named by the Minari dataset (its env spec, or our export's metadata)"
+                            if f.path.startswith("minari:") else "recorded in the file"}
+    if f.path.startswith("minari:"):  # open_minari reads the dynamics from the env spec where it can
+        raise DatasetError(f"{f.path} names no dynamics we serve: pass --dynamics brax, d4rl or v5")
     infos = read_infos(f.path)  # a damaged file raises here: no fallback
     if "qpos" not in infos or "qvel" not in infos:
         return "d4rl", {"how": "a D4RL-layout file without physics states: D4RL's (gym's) dynamics assumed"}

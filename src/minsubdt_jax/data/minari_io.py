@@ -122,5 +122,33 @@ def open_minari(name: str) -> DatasetFile:
                        lengths, np.array([bool(e.terminations[-1]) for e in eps]))
     data = from_flat(data.to_flat(), source=name)  # the checks every file gets: finite float32, flags, shapes
     meta = ds.storage.metadata
-    return DatasetFile(data=data, path=name, sha256=data.sha256(), env=meta.get("minsubdt_env"),
-                       dynamics=meta.get("minsubdt_dynamics"), physics=meta.get("minsubdt_physics"))
+    env, dynamics = _env_and_dynamics(name, meta, ds.spec.env_spec)
+    refs = None
+    if meta.get("ref_min_score") is not None and meta.get("ref_max_score") is not None:
+        refs = (float(meta["ref_min_score"]), float(meta["ref_max_score"]),
+                f"the dataset's own (Minari metadata ref_min_score / ref_max_score of {dataset_id})")
+    return DatasetFile(data=data, path=name, sha256=data.sha256(), env=env, dynamics=dynamics,
+                       physics=meta.get("minsubdt_physics"), references=refs)
+
+
+# gymnasium's MuJoCo envs whose rules we have (minsubdt_jax.envs.rules): id -> (env, dynamics)
+GYM_ENVS = {f"{gym}-{v}": (env, dyn) for gym, env in (("Hopper", "hopper"), ("Walker2d", "walker"),
+                                                       ("HalfCheetah", "halfcheetah"))
+            for v, dyn in (("v4", "d4rl"), ("v5", "v5"))}
+
+
+def _env_and_dynamics(name: str, meta: dict, env_spec) -> tuple[str | None, str | None]:
+    """``(env, dynamics)`` of a Minari dataset: what our export's metadata says, else its env spec's gymnasium id
+    (``Hopper-v5`` -> hopper in v5) when it names an env in rules we have with its default settings; an env spec
+    we cannot serve is one DatasetError; no env spec: ``(None, None)`` (``--dynamics`` decides)."""
+    if meta.get("minsubdt_dynamics"):
+        return meta.get("minsubdt_env"), meta["minsubdt_dynamics"]
+    if env_spec is None:
+        return None, None
+    served = GYM_ENVS.get(env_spec.id)
+    odd = {k: v for k, v in (env_spec.kwargs or {}).items() if k not in ("render_mode",)}
+    if served is None or odd:
+        why = f"its env {env_spec.id}" + (f" with {odd}" if odd else "")
+        raise DatasetError(f"{name}: {why} is not one we can evaluate in; we have "
+                           f"{', '.join(sorted(GYM_ENVS))} at their defaults (and our own exports)")
+    return served

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .c_backend import Sims
-from .rules import TORSO, env_rules, mj_model, observe
+from .rules import TORSO, env_rules, forward_position, mj_model, observe, step_outcome
 from .spec import env_spec
 
 DEFAULT_TOLERANCE = 1e-3  # largest |Δobs| of a transition counted as reproduced
@@ -95,8 +95,40 @@ def dynamics_report(env: str, data, qpos, qvel, *, transitions: int = 2000, seed
     per = {k: {"max": float(e.max()), "median": float(np.median(e)), "reproduced": float(np.mean(e <= tolerance))}
            for k, e in errs.items()}
     best = max(per, key=lambda k: (per[k]["reproduced"], -per[k]["median"]))
-    best = best if per[best]["reproduced"] >= 0.5 else NEITHER
-    return {"dynamics": per, "best": best, "tolerance": tolerance, "transitions": int(len(next(iter(errs.values()))))}
+    tied = [k for k in per if np.array_equal(errs[k], errs[best])]  # the same model and integrator
+    out = {"dynamics": per, "best": best if per[best]["reproduced"] >= 0.5 else NEITHER, "tolerance": tolerance,
+           "transitions": int(len(next(iter(errs.values()))))}
+    if len(tied) > 1 and out["best"] != NEITHER:  # the same states (d4rl and v5 but for walker's feet): the terminal steps' rewards decide
+        rewards = terminal_reward_errors(env, data, qpos, qvel, tied)
+        if rewards is not None:
+            for k, e in rewards.items():
+                per[k]["terminal_reward_error"] = e
+            out["best"] = min(tied, key=lambda k: (rewards[k], tied.index(k)))
+        out["same_states"] = tied
+    return out
+
+
+def terminal_reward_errors(env: str, data, qpos, qvel, dynamics: list[str]) -> dict[str, float] | None:
+    """``{dynamics: largest |Δreward|}`` over the terminated episodes' last steps, replayed from their recorded
+    states: where two dynamics step the same states (gym v4's and v5's hopper), only the healthy reward of the
+    terminal step (v4 pays it, v5 does not) tells them apart. None where no episode terminated."""
+    lengths = np.asarray(data.lengths)
+    ended = np.flatnonzero(np.asarray(data.terminals))
+    if ended.size == 0:
+        return None
+    rows = (np.cumsum(lengths) - 1)[ended]
+    q, v = np.asarray(qpos, np.float64)[rows], np.asarray(qvel, np.float64)[rows]
+    a = np.clip(np.asarray(data.actions, np.float64)[ended, lengths[ended] - 1], -1.0, 1.0)
+    r = np.asarray(data.rewards, np.float64)[ended, lengths[ended] - 1]
+    out = {}
+    for dyn in dynamics:
+        sims, rules = Sims(env, dyn, len(q), threads=0), env_rules(env, dyn)
+        sims.set_state(q, v)
+        x_before = forward_position(rules, np.array(sims.qpos), sims.torso())
+        sims.step(a)
+        reward, _ = step_outcome(rules, x_before, np.array(sims.qpos), np.array(sims.qvel), sims.torso(), a, np)
+        out[dyn] = float(np.abs(reward - r).max())
+    return out
 
 
 def _source_convention(env: str, qpos, qvel, obs) -> str:

@@ -1,7 +1,7 @@
 """Each env's rules, written once for every physics backend: the model, the reset distribution, the observation,
 the reward and the termination, as functions of the physics state.
 
-Two sets of rules (``dynamics``):
+Three sets of rules (``dynamics``):
 
 * ``brax``: brax 0.14.2's ``hopper``, ``walker2d`` and ``halfcheetah`` (``brax/envs/*.py`` on brax's XMLs: Euler,
   4 solver iterations, only some geoms touching the floor). obs[0] of hopper and walker and the forward progress
@@ -11,6 +11,9 @@ Two sets of rules (``dynamics``):
   gym's XMLs as gymnasium ships them (RK4 for hopper and walker, 100 solver iterations, every geom colliding;
   walker foot friction 0.9 / 1.9). D4RL recorded its datasets with these classes (mujoco-py, gym < 0.24).
   Everything is read from ``qpos``/``qvel``; the healthy reward is paid on the terminal step too (v5 does not).
+* ``v5``: gymnasium's ``Hopper-v5``, ``Walker2d-v5`` and ``HalfCheetah-v5`` at their defaults, in which Minari's
+  MuJoCo datasets are recorded: v4's rules but the healthy reward paid only while healthy (not on the terminal step),
+  and walker on ``walker2d_v5.xml`` (both feet at friction 1.9). HalfCheetah-v5 is HalfCheetah-v4.
 
 Each env's constants (its XML per dynamics, frame skip, control cost, reset noise, healthy ranges) are its record's
 (:class:`~minsubdt_jax.envs.spec.Dynamics` in :data:`~minsubdt_jax.envs.spec.ENVS`); the functions here are the same
@@ -32,7 +35,7 @@ import numpy as np
 
 from .spec import Dynamics, env_spec
 
-DYNAMICS = ("brax", "d4rl")
+DYNAMICS = ("brax", "d4rl", "v5")
 TORSO = 1  # body id of the torso in every model here (body 0 is the world)
 
 
@@ -170,6 +173,8 @@ def step_outcome(rules: Rules, x_before, qpos, qvel, torso, action, xp=jnp):
     termination (not healthy; never for halfcheetah). ``x_before`` is :func:`forward_position` before the step,
     ``qpos``/``qvel``/``torso`` the state after it, ``action [..., act]`` the (clipped) action."""
     velocity = (forward_position(rules, qpos, torso) - x_before) / rules.dt
-    reward = velocity + rules.healthy_reward - rules.ctrl_cost * xp.sum(xp.square(action), axis=-1)
-    done = ~is_healthy(rules, qpos, qvel, torso, xp) if rules.terminates else xp.zeros(reward.shape, bool)
+    healthy = is_healthy(rules, qpos, qvel, torso, xp)
+    bonus = rules.healthy_reward if rules.healthy_reward_on_fall else rules.healthy_reward * healthy
+    reward = velocity + bonus - rules.ctrl_cost * xp.sum(xp.square(action), axis=-1)
+    done = ~healthy if rules.terminates else xp.zeros(reward.shape, bool)
     return reward, done

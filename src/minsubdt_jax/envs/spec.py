@@ -40,15 +40,20 @@ class Dynamics:
     z_index: int = 1
     angle_index: int = 2
     brax_loader: bool = False
+    healthy_reward_on_fall: bool = True  # the healthy reward is paid on the terminal step too (brax, gym v2-v4)
 
 
-def brax_and_d4rl(brax_xml: str, gym_xml: str, torso_height: bool = False, **rules) -> dict:
-    """``{"brax": ..., "d4rl": ...}``: one planar env's rules in brax's env (brax's XML and loader, forward progress
-    and, with ``torso_height``, the observed height from the torso's ``xpos``) and in gym's v2-v4 env (gymnasium's
-    XML, everything from ``qpos``), with the same constants ``rules`` (:mod:`~minsubdt_jax.envs.rules`)."""
+def planar_dynamics(brax_xml: str, gym_xml: str, v5_xml: str | None = None, torso_height: bool = False,
+                    **rules) -> dict:
+    """``{"brax": ..., "d4rl": ..., "v5": ...}``: one planar env's rules in brax's env (brax's XML and loader,
+    forward progress and, with ``torso_height``, the observed height from the torso's ``xpos``), in gym's v2-v4 env
+    (gymnasium's XML, everything from ``qpos``) and in gymnasium's v5 env (its v5 XML, ``v5_xml`` where it has its
+    own; the healthy reward only while healthy), with the same constants ``rules`` (:mod:`~minsubdt_jax.envs.rules`)."""
+    gym = "gymnasium:envs/mujoco/assets/"
     return {"brax": Dynamics(f"brax:envs/assets/{brax_xml}", brax_loader=True, forward_from_torso=True,
                              height_from_torso=torso_height, **rules),
-            "d4rl": Dynamics(f"gymnasium:envs/mujoco/assets/{gym_xml}", **rules)}
+            "d4rl": Dynamics(gym + gym_xml, **rules),
+            "v5": Dynamics(gym + (v5_xml or gym_xml), healthy_reward_on_fall=False, **rules)}
 
 
 @dataclass(frozen=True)
@@ -94,20 +99,20 @@ _HOPPER_WALKER = dict(frame_skip=4, ctrl_cost=1e-3, reset_noise=5e-3, clip_qvel=
 ENVS = {
     "hopper": EnvSpec("hopper", "hopper", 11, 3, 5, 6, 1.25, terminates=True, speed_hi=4.0, joint_speed_hi=10.0,
                       speed_band=(2.0, 3.0), speed_band_sat=2.0, replay_transitions=402_000, bear_kernel="laplacian",
-                      dynamics=brax_and_d4rl("hopper.xml", "hopper.xml", torso_height=True,
+                      dynamics=planar_dynamics("hopper.xml", "hopper.xml", torso_height=True,
                                              z_range=(0.7, float("inf")), angle_range=(-0.2, 0.2),
                                              state_range=(-100.0, 100.0), **_HOPPER_WALKER),
                       references={"d4rl": (-20.272305, 3234.3, _D4RL_REFS)}),
     "walker": EnvSpec("walker", "walker2d", 17, 6, 8, 9, 1.25, terminates=True, speed_hi=6.0, joint_speed_hi=10.0,
                       speed_band=(2.5, 3.5), speed_band_sat=2.0, replay_transitions=302_000, bear_kernel="laplacian",
-                      dynamics=brax_and_d4rl("walker2d.xml", "walker2d.xml", torso_height=True,
+                      dynamics=planar_dynamics("walker2d.xml", "walker2d.xml", "walker2d_v5.xml", torso_height=True,
                                              z_range=(0.8, 2.0), angle_range=(-1.0, 1.0), **_HOPPER_WALKER),
                       references={"d4rl": (1.629008, 4592.3, _D4RL_REFS)}),
     "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None, 0.0, terminates=False, speed_hi=15.0,
                            joint_speed_hi=30.0, speed_band=(4.0, 6.0), speed_band_sat=5.0, replay_transitions=202_000,
                            bear_kernel="gaussian",
-                           dynamics=brax_and_d4rl("half_cheetah.xml", "half_cheetah.xml", frame_skip=5,
-                                                  ctrl_cost=0.1, reset_noise=0.1, qvel_noise_normal=True),
+                           dynamics=planar_dynamics("half_cheetah.xml", "half_cheetah.xml", frame_skip=5,
+                                                    ctrl_cost=0.1, reset_noise=0.1, qvel_noise_normal=True),
                            references={"d4rl": (-280.178953, 12135.0, _D4RL_REFS)}),
 }
 _ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
