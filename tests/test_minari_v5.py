@@ -63,3 +63,23 @@ def test_a_minari_env_we_cannot_serve_is_one_error_line(tmp_path, monkeypatch, c
     err = capsys.readouterr().err
     assert err.startswith("error: minari:test/odd/tiny-v0: ") and says in err and err.count("\n") == 1, err
     assert not out.exists()
+
+
+def test_the_v5_cell_recording_is_a_v5_minari_dataset_with_references_measured_in_it(tmp_path, monkeypatch):
+    """``experiments/gymnasium_dataset.py --version v5 --minari ID`` (the v5 cell's recording): the D4RL-layout file
+    replays under v5 (not v4: the terminal rewards), and the Minari dataset loads as v5 data with the random and
+    expert returns it measured as its references."""
+    import gymnasium_dataset as mod  # experiments/ (pyproject's pythonpath)
+
+    from minsubdt_jax.data import resolve_dataset
+    from minsubdt_jax.data.d4rl import file_dynamics
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    out = mod.record("hopper", 12, str(tmp_path / "h.hdf5"), policy="random", horizon=60, version="v5")
+    refs = mod.to_minari(out["rows"], "hopper", "v5", "test/hopper-v5/random-v0", 60, ref_episodes=2, seed=0)
+    f = resolve_dataset("hopper", str(tmp_path / "h.hdf5"), verbose=False)
+    dyn, how = file_dynamics(f, "hopper")
+    assert dyn == "v5" and how["same_states"] == ["d4rl", "v5"], how
+    m = resolve_dataset("hopper", "minari:test/hopper-v5/random-v0", verbose=False)
+    assert m.dynamics == "v5" and m.references[:2] == (refs["random"], refs["expert"]) and m.sha256 == f.sha256
+    assert refs["expert"] > 3 * abs(refs["random"])  # 60-step episodes: the expert hops, random actions fall

@@ -134,6 +134,11 @@ def check(env: str, dataset: str, transitions: int, horizon: int, seed: int, phy
     for name, r in rep["dynamics"].items():
         print(f"  {name:5s} largest |Δobs| {r['max']:.3g}, median {r['median']:.3g}, reproduced "
               f"{100 * r['reproduced']:.1f} %")
+    if "same_states" in rep:
+        errs = {k: rep["dynamics"][k].get("terminal_reward_error") for k in rep["same_states"]}
+        print(f"  {' and '.join(rep['same_states'])} step the same states; " + (
+            "the terminal steps' rewards decide: largest |Δreward| " + ", ".join(f"{k} {v:.3g}" for k, v in errs.items())
+            if None not in errs.values() else "no episode terminated, so nothing tells them apart"))
     said = f" (the file says {f.dynamics})" if f.dynamics else ""
     print(f"the data came from the {rep['best']} dynamics{said}" if rep["best"] != NEITHER else
           f"neither dynamics reproduces the data{said}: it was recorded in other physics, or edited")
