@@ -23,8 +23,8 @@ SMALLER = {'resolve_dataset("walker", "medium")': 'resolve_dataset("walker", "me
 NEEDS_RUN = 'load_policy("runs/walker-vec"'  # the block after *Choose your trade-off*'s commands: run there
 
 
-def readme() -> str:
-    with open(os.path.join(ROOT, "README.md")) as f:
+def readme(name: str = "README.md") -> str:
+    with open(os.path.join(ROOT, name)) as f:
         return f.read()
 
 
@@ -86,7 +86,7 @@ def test_every_readme_command_parses(monkeypatch):
     ``train.parse_args`` (with its checks), the others' argparse (stopped right after parsing: nothing runs)."""
     from minsubdt_jax.train import parse_args
 
-    commands = command_lines(readme())
+    commands = command_lines(readme()) + command_lines(readme("docs/GUIDE.md"))  # the README and its guide
     assert len(commands) >= 20 and any(c[2:3] == ["minsubdt_jax.evaluate"] for c in commands)
     original = argparse.ArgumentParser.parse_args
 
@@ -114,7 +114,7 @@ def test_choose_your_trade_off_runs_as_written(tmp_path, monkeypatch, capsys):
     from minsubdt_jax.evaluate import main as evaluate
     from minsubdt_jax.train import main as train
 
-    section = readme().split("### Choose your trade-off")[1].split("\n## ")[0].split("\n### ")[0]
+    section = readme().split("## Choose your trade-off")[1].split("\n## ")[0].split("\n### ")[0]
     commands = command_lines(section)
     assert [c[2] for c in commands] == ["minsubdt_jax.train", "minsubdt_jax.evaluate", "minsubdt_jax.evaluate"]
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
