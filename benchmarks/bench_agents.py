@@ -36,6 +36,7 @@ from minsubdt_jax.agents import batch_size_of, make_agent
 from minsubdt_jax.agents.base import init_state, make_train_chunk, optimizer_for
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.data import sampler_data
+from minsubdt_jax.atomic import atomic_open
 
 # name -> (agent, preset whose fields it takes)
 AGENTS = {"dt-cpu": ("dt", "cpu"), "dt-paper": ("dt", "paper"), "bc-mlp": ("mlp", "cpu"), "iql": ("iql", "cpu"),
@@ -99,7 +100,7 @@ def main(argv=None) -> int:
         print(f"| {r['agent']} | {r['batch']} | {r['ms_per_step']:.2f} | {r['steps_per_s']:.0f} | "
               f"{r['relative_to_dt_cpu']:.2f} | {r['compile_s']:.1f} |")
     if a.json:
-        with open(a.json, "w") as f:
+        with atomic_open(a.json) as f:
             json.dump({"rows": rows, "steps": a.steps, "repeats": a.repeats, "backend": jax.default_backend(),
                        "device": jax.devices()[0].device_kind, "cpus": os.cpu_count(), "jax": jax.__version__,
                        "numpy": np.__version__}, f, indent=1)

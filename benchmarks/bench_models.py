@@ -20,6 +20,7 @@ import dataclasses
 import json
 import statistics
 import time
+from minsubdt_jax.atomic import atomic_open
 
 
 def bench(preset: str, models: int, precision: str, steps: int, repeats: int) -> dict:
@@ -79,7 +80,7 @@ def main(argv=None) -> int:
             print(f"{a.preset} {m:4d} models {prec:5s}: {r['ms_per_step']:8.1f} ms/step, {r['model_steps_per_s']:8.1f} "
                   f"model-steps/s, {tf} TFLOP/s (compile + first chunk {r['compile_s']:.1f} s)", flush=True)
     if a.json:
-        with open(a.json, "w") as f:
+        with atomic_open(a.json) as f:
             json.dump(rows, f, indent=2)
     return 0
 

@@ -39,6 +39,7 @@ from minsubdt_jax.behavior.snapshots import load_policy
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.envs import env_spec, make_rollout, random_policy
 from minsubdt_jax.envs.c_backend import default_threads
+from minsubdt_jax.atomic import atomic_open
 
 
 def make_policy(env: str, name: str, n: int):
@@ -127,7 +128,7 @@ def main():
     if a.dt_forward:
         rows = dt_forward(a.episodes)
         if a.json:
-            with open(a.json, "w") as fh:
+            with atomic_open(a.json) as fh:
                 json.dump({"jax": jax.__version__, "rows": rows}, fh, indent=2)
         return
     dev = jax.devices()[0]
@@ -152,7 +153,7 @@ def main():
             if len(got) == 2:
                 print(f"# {env_spec(env).name} {name}: C MuJoCo / MJX = {got['mujoco'] / got['mjx']:.1f}x")
     if a.json:
-        with open(a.json, "w") as fh:
+        with atomic_open(a.json) as fh:
             json.dump({"device": f"{dev.platform} {dev.device_kind}", "jax": jax.__version__,
                        "threads": default_threads(), "rows": rows}, fh, indent=2)
 

@@ -36,6 +36,7 @@ from minsubdt_jax.config import PRESETS
 from minsubdt_jax.envs import MjxEnv, env_spec, make_rollout, random_policy
 from minsubdt_jax.agents.base import PolicyInputs
 from minsubdt_jax.agents.dt.agent import make_dt_agent
+from minsubdt_jax.atomic import atomic_open
 
 
 def setup(env: str, preset: str, policy: str):
@@ -155,7 +156,7 @@ def main():
     if any(r["extrapolated"] for r in rows):
         print("# * extrapolated from the episodes timed")
     if a.json:
-        with open(a.json, "w") as fh:
+        with atomic_open(a.json) as fh:
             json.dump({"env": env, "policy": a.policy, "preset": a.preset, "episodes": a.episodes, "horizon": a.horizon,
                        "device": f"{dev.platform} {dev.device_kind}", "jax": jax.__version__, "rows": rows}, fh,
                       indent=2)

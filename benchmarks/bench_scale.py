@@ -29,6 +29,7 @@ import socket
 import statistics
 import subprocess
 import sys
+from minsubdt_jax.atomic import atomic_open
 
 CONFIGS = {  # name -> (devices per process, processes, seeds, seed axis)
     "1 device": (1, 1, 1, True),
@@ -141,7 +142,7 @@ def main():
         print(f"| {row['preset']} | {row['round']} | " + " | ".join(f"{v:.1f} ms" for v in ms.values())
               + f" | {ratio('2 devices')} | {ratio('2 processes')} | {ratio('3 seeds', 3)} |")
     if a.json:
-        with open(a.json, "w") as f:
+        with atomic_open(a.json) as f:
             json.dump(out, f, indent=2)
 
 

@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 from minsubdt_jax.subdominance import min_subdominance, pairwise_subdominance
+from minsubdt_jax.atomic import atomic_open
 
 
 def numpy_min_subdominance(F, G, beta=1.0, leave_one_out=False):
@@ -110,7 +111,7 @@ def main():
                       f"{r.get('numpy_over_exact', float('nan')):>11.0f} {r.get('optax_max_rel_err', float('nan')):>13.2e}",
                       flush=True)
     if a.json:
-        with open(a.json, "w") as fh:
+        with atomic_open(a.json) as fh:
             json.dump({"machine": platform.processor() or platform.machine(), "jax": jax.__version__, "rows": rows},
                       fh, indent=2)
 

@@ -32,6 +32,7 @@ from minsubdt_jax.data import Trajectories, sampler_data
 from minsubdt_jax.parallel import make_mesh, replicate
 from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk, make_train_step
 from minsubdt_jax.agents.dt.agent import make_dt_agent
+from minsubdt_jax.atomic import atomic_open
 
 
 def make_matmul(n=2048):
@@ -188,7 +189,7 @@ def main():
               f"{r['fraction_of_matmul']:>9.0%} | {r['dots_only_ms']:>12.1f} {r['dots_only_gflops']:>8.1f} "
               f"{r['dots_only_fraction_of_matmul']:>9.0%} {r['dots_share_of_step']:>7.0%}", flush=True)
     if a.json:
-        with open(a.json, "w") as fh:
+        with atomic_open(a.json) as fh:
             json.dump({"jax": jax.__version__, "rows": rows}, fh, indent=2)
 
 

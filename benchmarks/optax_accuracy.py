@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from minsubdt_jax.subdominance import min_subdominance
+from minsubdt_jax.atomic import atomic_open
 
 
 def instance(rng, loo: bool, n: int = 64, k: int = 2):
@@ -59,7 +60,7 @@ def main():
         print(f"leave_one_out={loo}: {r['rows']} rows, max rel err {r['max_rel_err']:.2e}, p99 {r['p99_rel_err']:.2e}, "
               f"rows over 1e-3: {r['rows_over_1e-3']} ({r['seconds']:.0f} s)", flush=True)
     if a.json:
-        with open(a.json, "w") as f:
+        with atomic_open(a.json) as f:
             json.dump({"instances": a.instances, "seed": a.seed, **out}, f, indent=2)
 
 

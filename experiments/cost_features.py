@@ -38,6 +38,7 @@ from minsubdt_jax.costs import engineered_costs, horizon_average, spearman
 from minsubdt_jax.data import resolve_dataset
 from minsubdt_jax.envs import env_spec
 from minsubdt_jax.subdominance import min_subdominance
+from minsubdt_jax.atomic import atomic_open
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 Z_HI = 2.0  # m/s: the clip range [-2, 2] of the z-velocity cost as first built
@@ -121,9 +122,9 @@ def main(argv=None):
     a = p.parse_args(argv)
     rows = [analyse(e, d, a.transitions, physics=a.physics) for e in a.envs for d in a.datasets]
     os.makedirs(a.out, exist_ok=True)
-    with open(os.path.join(a.out, "cost_features.json"), "w") as f:
+    with atomic_open(os.path.join(a.out, "cost_features.json")) as f:
         json.dump(rows, f, indent=1)
-    with open(os.path.join(a.out, "cost_features.md"), "w") as f:
+    with atomic_open(os.path.join(a.out, "cost_features.md")) as f:
         f.write(markdown(rows))
     print(markdown(rows))
 

@@ -32,6 +32,7 @@ import sys
 import numpy as np
 
 from curves_report import RESULTS, plot, report  # beside this file (a script's folder is on its path)
+from minsubdt_jax.atomic import atomic_open
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DEFAULT_METHODS = "minsubdt,dt"
@@ -76,7 +77,7 @@ def run(a) -> dict:
     res = train(cfg, resume=os.path.exists(os.path.join(out, "config.json")))
     curve = collect(out, res)
     os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, name_of(a) + ".json"), "w") as f:
+    with atomic_open(os.path.join(RESULTS, name_of(a) + ".json")) as f:
         json.dump(curve, f, indent=1)
     plot(curve, os.path.join(RESULTS, name_of(a) + ".png"))
     return curve
@@ -106,7 +107,7 @@ def snapshot(a) -> dict:
            "models": [{"method": m, "seed": s} for m, s in zip(first["eval_method"], first["eval_seed"])]}
     curve = collect(out, res)
     curve.update(partial=True, command=" ".join(["python experiments/curves.py run", *sys.argv[2:]]))
-    with open(os.path.join(RESULTS, name_of(a) + ".json"), "w") as f:
+    with atomic_open(os.path.join(RESULTS, name_of(a) + ".json")) as f:
         json.dump(curve, f, indent=1)
     plot(curve, os.path.join(RESULTS, name_of(a) + ".png"))
     return curve
@@ -192,7 +193,7 @@ def ties(cells: str = CELLS, cost_sets=(None,), beta: float = 1.0, alpha_max=Non
               f"{r['K']} | {100 * r['tied_share']:.1f} % | {r['tied_return_min']:.0f} .. {r['tied_return_max']:.0f} | "
               f"{r['return_median']:.0f} | {100 * r['top_quartile_tied']:.1f} % | {r['spearman_all']:.3f} | "
               f"{r['spearman_untied']:.3f} |" for r in rows]
-    with open(os.path.join(HERE, "results", "ties.md"), "w") as fh:
+    with atomic_open(os.path.join(HERE, "results", "ties.md")) as fh:
         fh.write("\n".join(lines) + "\n")
     return rows
 

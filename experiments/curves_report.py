@@ -8,6 +8,7 @@ import json
 import os
 
 import numpy as np
+from minsubdt_jax.atomic import atomic_open, save_figure
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results", "curves")
@@ -156,7 +157,7 @@ def plot(curve: dict, png: str) -> None:
            title=f"{c['env']} {c['dataset']}: " + model_of(c).split(" (docs")[0].replace(" of the parameters", ""))
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(png, dpi=120)
+    save_figure(fig, png, dpi=120)
     plt.close(fig)
 
 
@@ -231,6 +232,6 @@ def report() -> str:
                       f"{flat_verdict(r['fitted_change'], r['fitted_change_se'])} |" for r in st]
         lines.append("")
     text = "\n".join(lines) + "\n"
-    with open(os.path.join(HERE, "results", "curves.md"), "w") as f:
+    with atomic_open(os.path.join(HERE, "results", "curves.md")) as f:
         f.write(text)
     return text

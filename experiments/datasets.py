@@ -21,8 +21,9 @@ import time
 from minsubdt_jax.behavior.snapshots import load_manifest
 from minsubdt_jax.data.named import NAMED_DATASETS, d4rl_transitions, dataset_path, resolve_dataset, summary
 from minsubdt_jax.envs import PHYSICS, resolve_physics
+from minsubdt_jax.atomic import atomic_open, save_figure
 
-HERE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
 
 def plot_curves(envs, png):
@@ -44,7 +45,7 @@ def plot_curves(envs, png):
         ax.legend()
     fig.suptitle("SAC behaviour policies in MJX")
     fig.tight_layout()
-    fig.savefig(png)
+    save_figure(fig, png)
     plt.close(fig)
 
 
@@ -60,7 +61,7 @@ def file_cell(row) -> str:
 
 def kept_rows(a) -> list[dict]:
     """The rows of the existing ``datasets.json`` that this call does not record again (same size and seed)."""
-    path = os.path.join(HERE, "datasets.json")
+    path = os.path.join(RESULTS, "datasets.json")
     if not os.path.exists(path):
         return []
     with open(path) as f:
@@ -82,7 +83,7 @@ def main(argv=None):
     p.add_argument("--cached", action="store_true", help="use files already in the cache (no generation time)")
     a = p.parse_args(argv)
     a.physics = resolve_physics(a.physics)
-    os.makedirs(HERE, exist_ok=True)
+    os.makedirs(RESULTS, exist_ok=True)
     rows = kept_rows(a)
     for env in a.envs:
         for ds in a.datasets:
@@ -100,7 +101,7 @@ def main(argv=None):
     order = {(e, d): i for i, (e, d) in enumerate((e, d) for e in ("hopper", "walker", "halfcheetah")
                                                    for d in NAMED_DATASETS)}
     rows.sort(key=lambda r: order[r["env"], r["dataset"]])
-    with open(os.path.join(HERE, "datasets.json"), "w") as f:
+    with atomic_open(os.path.join(RESULTS, "datasets.json")) as f:
         json.dump({"transitions": a.transitions or "d4rl", "seed": a.seed, "physics": a.physics, "rows": rows}, f,
                   indent=1)
     lines = ["| env | dataset | episodes | transitions | return (mean ± std) | normalised score | generation (s) | "
@@ -109,9 +110,9 @@ def main(argv=None):
               f"{r['return_std']:.1f} | {r['normalized_score_mean']:.1f} | "
               f"{seconds(r)} | "
               f"{file_cell(r)} |" for r in rows]
-    with open(os.path.join(HERE, "datasets.md"), "w") as f:
+    with atomic_open(os.path.join(RESULTS, "datasets.md")) as f:
         f.write("\n".join(lines) + "\n")
-    plot_curves(a.envs, os.path.join(HERE, "behavior_curves.png"))
+    plot_curves(a.envs, os.path.join(RESULTS, "behavior_curves.png"))
 
 
 if __name__ == "__main__":

@@ -31,9 +31,7 @@ import sys
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-RESULTS = os.path.join(HERE, "results", "front")
-PAIR = ("x_velocity", "energy@lived")
+from front_report import PAIR, RESULTS, report  # beside this file: the report reads what run writes
 RUNS = {"vec": ("minsubdt-vec,dt-vec", ",".join(PAIR)), "minsubdt-x_velocity": ("minsubdt", PAIR[0]),
         "minsubdt-energy@lived": ("minsubdt", PAIR[1]), "minsubdt-both": ("minsubdt", ",".join(PAIR))}
 VECTOR = ("minsubdt-vec", "dt-vec")
@@ -134,7 +132,7 @@ def run(a, path: str, out: dict) -> None:
 
     def landed(what: str):  # --commit: the cell file alone, as each part lands (a machine may vanish mid-cell)
         if a.commit:
-            from table1_units import commit_results
+            from gitcommit import commit_results
             commit_results([path], f"Front (issue 55), {cell_name(a)}: {what} landed; resume: bash "
                                    "experiments/queue.sh front")
 
@@ -194,7 +192,6 @@ def main(argv=None) -> None:
     sub.add_parser("report")
     a = p.parse_args(argv)
     if a.cmd == "report":
-        from front_report import report
         return report(a)
     try:
         path, made = cell_file(a)

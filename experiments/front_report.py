@@ -12,7 +12,11 @@ import os
 
 import numpy as np
 
-from front import HERE, PAIR, RESULTS
+from minsubdt_jax.atomic import atomic_open, save_figure
+
+HERE = os.path.dirname(os.path.abspath(__file__))  # experiments/
+RESULTS = os.path.join(HERE, "results", "front")  # the cells' files
+PAIR = ("x_velocity", "energy@lived")  # the two cost metrics of every front
 
 
 def hypervolume(points) -> float:
@@ -170,8 +174,8 @@ def report(a) -> None:
         ax.set(xlabel=f"{PAIR[0]} cost", ylabel=f"{PAIR[1]} cost", title=r["cell"])
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(os.path.join(HERE, "results", "front.png"), dpi=110)
+    save_figure(fig, os.path.join(HERE, "results", "front.png"), dpi=110)
     lines += ["![the demos and the rollout means](front.png)", ""]
-    with open(os.path.join(HERE, "results", "front.md"), "w") as f:
+    with atomic_open(os.path.join(HERE, "results", "front.md")) as f:
         f.write("\n".join(lines))
     print("\n".join(lines))

@@ -148,6 +148,9 @@ def train_d3rlpy(a, cfg, ours, buffer, seed: int) -> dict:
 
     def callback(algo, epoch, total_step):
         average(algo, epoch, total_step)
+        if total_step % 10_000 == 0:  # progress in the lane's log
+            print(f"d3rlpy {a.agent} seed {seed}: step {total_step} of {cfg.steps}, {time.perf_counter() - t0:.0f} s",
+                  flush=True)
         if a.eval_every and total_step % a.eval_every == 0 and total_step < cfg.steps:
             average.swapped()
             curve.append({"step": total_step, **evaluate(algo.predict, a.env, a.eval_episodes)})

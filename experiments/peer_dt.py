@@ -32,6 +32,7 @@ import sys
 import time
 
 import numpy as np
+from minsubdt_jax.atomic import write_atomic
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results", "peer_dt")
@@ -166,10 +167,10 @@ def run(a) -> dict:
         out["peer"][str(seed)] = dict(evaluate_d3rlpy(algo, ema, a.env, out["target_return"], a.episodes),
                                       train_seconds=secs)
         os.makedirs(RESULTS, exist_ok=True)
-        json.dump(out, open(path, "w"), indent=1)
+        write_atomic(path, json.dumps(out, indent=1))
         print(json.dumps({"seed": seed, **out["peer"][str(seed)]}), flush=True)
     out["ours"] = train_ours(a, cfg)
-    json.dump(out, open(path, "w"), indent=1)
+    write_atomic(path, json.dumps(out, indent=1))
     return out
 
 
@@ -204,7 +205,7 @@ def time_steps(a) -> dict:
     out = {"preset": a.preset, "steps": a.steps, "d3rlpy_s_per_step": peer, "ours_s_per_step": ours,
            "ratio": peer / ours, "cores": os.cpu_count(), "torch_threads": torch.get_num_threads()}
     os.makedirs(RESULTS, exist_ok=True)
-    json.dump(out, open(os.path.join(RESULTS, f"time-{a.preset}.json"), "w"), indent=1)
+    write_atomic(os.path.join(RESULTS, f"time-{a.preset}.json"), json.dumps(out, indent=1))
     print(json.dumps(out))
     return out
 
@@ -229,7 +230,7 @@ def report(a) -> str:
         text += (f"\nTraining step at `{t['preset']}` on this {t['cores']}-core CPU (one model, {t['steps']} steps, "
                  f"`peer_dt.py time`): d3rlpy {1e3 * t['d3rlpy_s_per_step']:.1f} ms, ours "
                  f"{1e3 * t['ours_s_per_step']:.1f} ms: {t['ratio']:.2f}x in our favour.\n")
-    open(os.path.join(HERE, "results", "peer_dt.md"), "w").write(text)
+    write_atomic(os.path.join(HERE, "results", "peer_dt.md"), text)
     print(text)
     return text
 

@@ -19,21 +19,8 @@ set -u
 cd "$(dirname "$0")/.."
 mkdir -p runs/logs
 
-commit() {  # commit the named result paths if they changed: commit MESSAGE PATH...
-    local msg=$1; shift
-    git_waiting add -- "$@" 2>/dev/null
-    git diff --cached --quiet -- "$@" || git_waiting commit -q -m "$msg" -- "$@"
-}
-
-git_waiting() {  # git ARGS..., again while another git process (a developer's commit) holds the index lock, <= 2 min
-    local i err
-    for i in $(seq 240); do
-        err=$(git "$@" 2>&1 > /dev/null) && return 0
-        [[ $err == *index.lock* ]] || break
-        sleep 0.5
-    done
-    echo "$err" >&2
-    return 1
+commit() {  # commit the named result paths if they changed: commit MESSAGE PATH... (experiments/gitcommit.py)
+    python experiments/gitcommit.py "$@"
 }
 
 wait_for() {  # while another process runs this pattern, wait (the run directories' locks would refuse a second)

@@ -17,6 +17,7 @@ import os
 import sys
 
 import numpy as np
+from minsubdt_jax.atomic import atomic_open
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CELLS = ("walker/medium", "hopper/medium-replay", "halfcheetah/medium-expert")
@@ -89,10 +90,10 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     rows = [measure(*c.split("/"), a.discount) for c in a.cells]
     out = os.path.join(HERE, "results")
-    with open(os.path.join(out, "sparse_reward.json"), "w") as f:
+    with atomic_open(os.path.join(out, "sparse_reward.json")) as f:
         json.dump(rows, f, indent=1)
     text = report(rows)
-    with open(os.path.join(out, "sparse_reward.md"), "w") as f:
+    with atomic_open(os.path.join(out, "sparse_reward.md")) as f:
         f.write(text)
     print(text)
     return 0

@@ -41,8 +41,11 @@ from table1_report import (COLUMNS, DATASETS, ENVS, METHODS, PUBLISHED, PUBLISHE
 import table1_compare
 import table1_seeds
 from table1_figures import model_curve, plot_cell_curves, plot_costs
-from table1_units import (check_critic_settings, check_not_stale, commit_results, compact, per_seed_results,
-                          plan_units, run_name)
+from gitcommit import commit_results
+from table1_units import (check_critic_settings, check_not_stale, compact, per_seed_results, plan_units,
+                          run_name)
+
+from minsubdt_jax.atomic import atomic_open
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -197,9 +200,9 @@ def aggregate(preset="cpu", results_root=RESULTS, out_root=RESULTS, plots=True, 
         if os.path.isdir(before) else None
     os.makedirs(out_root, exist_ok=True)
     out["curves"] = plot_cell_curves(preset, runs_root, out_root, set(out["table"]), rows) if plots else {}
-    with open(os.path.join(out_root, "table1.json"), "w") as f:
+    with atomic_open(os.path.join(out_root, "table1.json")) as f:
         json.dump(out, f, indent=2)
-    with open(os.path.join(out_root, "table1.md"), "w") as f:
+    with atomic_open(os.path.join(out_root, "table1.md")) as f:
         f.write(markdown(out) + table1_seeds.markdown(out) + table1_compare.markdown(out))
     if plots and rows:
         for env in ENVS:

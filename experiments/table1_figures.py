@@ -13,6 +13,7 @@ import numpy as np
 from minsubdt_jax.methods import METHODS as ALL_METHODS
 
 from table1_report import COLUMNS, DATASETS, ENVS, METHOD_NAMES
+from minsubdt_jax.atomic import save_figure
 
 
 def model_curve(run_dir: str, model: dict) -> dict | None:
@@ -152,5 +153,5 @@ def plot_costs(rows, env, png):
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(png)
+    save_figure(fig, png)
     plt.close(fig)

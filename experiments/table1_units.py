@@ -6,8 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import subprocess
-import time
 
 from minsubdt_jax.agents import AGENTS, missing_presets, result_fields
 from minsubdt_jax.methods import METHODS as ALL_METHODS
@@ -96,29 +94,6 @@ def per_seed_results(res: dict, i: int) -> dict:
     if "eval_per_seed" in res:
         out["eval"] = res["eval_per_seed"][i]
     return out
-
-
-def commit_results(paths: list[str], message: str) -> None:
-    """``git commit`` exactly ``paths`` (a finished unit's result files) with ``message``, in the repository that
-    holds them, leaving any other change in the work tree as it is (``table1.py run --commit``: a long sweep's
-    results land in the history as they finish)."""
-    cwd = os.path.dirname(os.path.abspath(paths[0]))
-    rel = [os.path.relpath(os.path.abspath(p), cwd) for p in paths]
-    git(["add", "--", *rel], cwd)
-    git(["commit", "-q", "-m", message, "--", *rel], cwd)
-
-
-def git(args: list[str], cwd: str, wait_s: float = 120.0) -> None:
-    """``git args`` in ``cwd``; while another git process (a developer's commit beside the sweep) holds the index
-    lock, waits for it, up to ``wait_s``, then raises as git's own error does."""
-    deadline = time.monotonic() + wait_s
-    while True:
-        p = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True)
-        if p.returncode == 0:
-            return
-        if "index.lock" not in p.stderr or time.monotonic() > deadline:
-            raise subprocess.CalledProcessError(p.returncode, p.args, p.stdout, p.stderr)
-        time.sleep(0.5)
 
 
 def stale_fields(saved: dict, expected) -> dict:

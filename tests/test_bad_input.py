@@ -138,17 +138,17 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     assert titles[0].get_text() == "hopper medium: dt (1 seed)"
 
 
-def test_the_peer_check_without_its_venv_is_one_line_saying_how(capsys):
-    """experiments/peer_dt.py needs torch and d3rlpy, which are not ours: without them, one error line with the
-    README's command that makes their venv (it was an ImportError traceback)."""
+@pytest.mark.parametrize("script", ["peer_dt", "peer_critics"])
+def test_the_peer_check_without_its_venv_is_one_line_saying_how(capsys, script):
+    """experiments/peer_dt.py and peer_critics.py need torch and d3rlpy, which are not ours: without them, one error
+    line with the README's command that makes their venv (it was an ImportError traceback)."""
+    import importlib
     import importlib.util
-
-    import peer_dt  # experiments/ (pyproject's pythonpath)
 
     if importlib.util.find_spec("d3rlpy") is not None:
         pytest.skip("d3rlpy is installed here")
     with pytest.raises(SystemExit) as e:
-        peer_dt.main(["run", "--env", "hopper"])
+        importlib.import_module(script).main(["run", "--env", "hopper"])  # experiments/ (pyproject's pythonpath)
     err = capsys.readouterr().err
     assert e.value.code == 2 and "python3 -m venv .venv-peer" in err and "Traceback" not in err, err
 
@@ -157,7 +157,6 @@ def test_the_peer_check_without_its_venv_is_one_line_saying_how(capsys):
     ("cost_features", ["--envs", "nope"], "invalid choice: 'nope'"),
     ("cost_features", ["--datasets", "nope"], "invalid choice: 'nope'"),
     ("datasets", ["--envs", "nope"], "invalid choice: 'nope'"),
-    ("probe_targets", ["/nonexistent-run"], "not a run directory"),
     ("compare_runs", ["/nonexistent-a", "/nonexistent-b"], "not a run directory")])
 def test_an_experiment_scripts_bad_input_is_one_error_line(script, argv, says, capsys):
     """A newcomer's pass over experiments/ (2026-12-06): these were tracebacks."""

@@ -92,13 +92,14 @@ def test_min_subdominance_ranks_random_hopper_like_returns(small_dataset):
 def test_better_than_demonstrated_means_dominating_the_mean_demo():
     """When no demo fell (their mean fall share is 0), an episode that does not fall either still beats the mean
     demo by being faster: no feature worse, one better. Hand-built hopper episodes of 10 steps, horizon 10."""
-    from minsubdt_jax.evaluation import score_episodes
+    from minsubdt_jax.evaluation import Scoring, score_episodes
 
     obs = np.zeros((3, 10, 11))
     obs[:, :, 5] = np.array([3.0, 1.5, 3.0])[:, None]  # x cost (4 - v) / 5: 0.2, 0.5, 0.2 (the last falls at 5)
     lengths, fell = np.array([10, 10, 5]), np.array([False, False, True])
     demos = np.array([[0.5, 0.0], [0.4, 0.0]])  # mean [0.45, 0]: nobody fell
-    ev = score_episodes("hopper", obs, lengths, np.ones((3, 10)), terminated=fell, horizon=10, demo_costs=demos)
+    ev = score_episodes("hopper", obs, lengths, np.ones((3, 10)), terminated=fell, horizon=10,
+                        scoring=Scoring(demo_costs=demos))
     np.testing.assert_allclose(ev.costs, [[0.2, 0.0], [0.5, 0.0], [0.6, 0.5]], rtol=1e-6)
     assert ev.beats_mean_demo.tolist() == [True, False, False]
 

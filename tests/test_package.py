@@ -166,3 +166,56 @@ def test_every_name_the_scripts_import_from_the_package_exists():
                             if not hasattr(module, a.name) and importlib.util.find_spec(
                                 f"{node.module}.{a.name}") is None]
     assert not missing, missing
+
+
+def test_no_function_in_the_package_takes_more_than_8_positional_or_12_parameters():
+    """Hand-offs between stages are records (issue 75): no function of ``src/`` takes more than 8 positional
+    parameters or 12 in all (``self`` and ``cls`` not counted)."""
+    import ast
+    import pathlib
+
+    root = pathlib.Path(minsubdt_jax.__file__).parent
+    over = []
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                a = node.args
+                own = int(bool(a.args) and a.args[0].arg in ("self", "cls"))
+                pos = len(a.posonlyargs) + len(a.args) - own
+                total = pos + len(a.kwonlyargs) + (a.vararg is not None) + (a.kwarg is not None)
+                if pos > 8 or total > 12:
+                    over.append(f"{path.relative_to(root)}:{node.lineno} {node.name} ({pos} positional, {total})")
+    assert not over, over
+
+
+def test_the_experiment_scripts_import_each_other_without_a_circle():
+    """experiments/ imports its siblings one way (issue 75: front.py and front_report.py imported each other),
+    counting imports inside functions too."""
+    import ast
+    import pathlib
+
+    folder = pathlib.Path(__file__).resolve().parent.parent / "experiments"
+    names = {p.stem for p in folder.glob("*.py")}
+    graph = {}
+    for p in folder.glob("*.py"):
+        deps = set()
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.Import):
+                deps |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                deps.add(node.module.split(".")[0])
+        graph[p.stem] = sorted((deps & names) - {p.stem})
+    state = {}
+
+    def visit(n, path):
+        if state.get(n) == "done":
+            return
+        assert state.get(n) != "open", f"import circle: {' -> '.join(path + [n])}"
+        state[n] = "open"
+        for d in graph[n]:
+            visit(d, path + [n])
+        state[n] = "done"
+
+    for n in sorted(graph):
+        visit(n, [])
+    assert "front_report" in graph["front"] and "front" not in graph["front_report"]

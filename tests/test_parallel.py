@@ -18,7 +18,7 @@ COMMON = textwrap.dedent("""
     from minsubdt_jax.agents.dt.agent import make_dt_agent
     from minsubdt_jax.config import PRESETS
     from minsubdt_jax.data import Trajectories, sampler_data
-    from minsubdt_jax.evaluation import evaluate_policy
+    from minsubdt_jax.evaluation import Scoring, evaluate_policy
     from minsubdt_jax.parallel import make_mesh, replicate
 
     def run(devices):
@@ -47,7 +47,7 @@ COMMON = textwrap.dedent("""
         stacked = jax.tree.map(lambda x: np.asarray(x)[None], pol)  # one model: a seed axis of 1
         demo = np.random.default_rng(1).uniform(0, 1, (6, 2))
         ev = evaluate_policy("hopper", hop, replicate(stacked, mesh), num_episodes=3, horizon=60, seeds=[4],
-                             demo_costs=demo, mesh=mesh)[0]  # on 1 device: the program train() evaluates with
+                             scoring=Scoring(demo_costs=demo), mesh=mesh)[0]  # on 1 device: the program train() evaluates with
         out.update(returns=ev.returns, lengths=ev.lengths, costs=ev.costs)
         return out
 """)

@@ -10,7 +10,8 @@ import threading
 import numpy as np
 import pytest
 
-import table1_units  # experiments/ (pyproject's pythonpath)
+import gitcommit  # experiments/ (pyproject's pythonpath)
+import table1_units
 from minsubdt_jax.agents import AGENTS, preset_config
 from minsubdt_jax.config import PRESETS
 from minsubdt_jax.rundir import Interrupted
@@ -63,10 +64,12 @@ def test_commit_results_commits_only_the_unit_files_and_waits_out_another_commit
     (tmp_path / "other.txt").write_text("work in progress")
     (tmp_path / ".git" / "index.lock").write_text("")
     threading.Timer(1.0, (tmp_path / ".git" / "index.lock").unlink).start()
-    table1_units.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
+    assert gitcommit.commit_results([str(tmp_path / "res" / "a.json")], "Table 1 (smoke): x; resume: python ...")
     assert git("log", "-1", "--format=%s").strip() == "Table 1 (smoke): x; resume: python ..."
     assert git("show", "--name-only", "--format=").split() == ["res/a.json"]
     assert "other.txt" in git("status", "--porcelain")  # left as it was
+    assert not gitcommit.commit_results([str(tmp_path / "res" / "a.json")], "again")  # unchanged: no commit
+    assert git("log", "-1", "--format=%s").strip() == "Table 1 (smoke): x; resume: python ..."
 
 
 def test_seed_runs_groups_consecutive_seeds():

@@ -250,6 +250,9 @@ def test_config_file_round_trips_flags_override_it_and_bad_files_are_refused(tmp
     assert (study_iql.steps, study_iql.lr_schedule, study_iql.ema_decay) == (1234, "constant", 0.999)
     assert parse_args(["--preset", "study", "--method", "iql", "--steps", "9"])[0].steps == 9
     assert parse_args(["--preset", "study"])[0] == PRESETS["study"]
+    quick = parse_args([])[0]  # the README's first command: study's recipe over 3k steps (issue 75: 4.0 at cpu's)
+    assert quick == PRESETS["quick"] and (quick.steps, quick.learning_rate, quick.lr_schedule, quick.ema_decay) == (
+        3000, 1e-3, "cosine", 0.999) and (quick.embed_dim, quick.n_layers) == (PRESETS["study"].embed_dim, 2)
     out = tmp_path / "never"
     for text, name, msg in (("steps: [\n", "a.yaml", "does not parse"), ('{"stpes": 3}', "b.json", "unknown field"),
                             ('{"steps": "3"}', "c.json", "field 'steps' must be int")):

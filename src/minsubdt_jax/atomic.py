@@ -29,6 +29,19 @@ def atomic_path(path, suffix: str = ".tmp"):
         raise
 
 
+@contextmanager
+def atomic_open(path, mode: str = "w"):
+    """``open(path, mode)`` for writing, atomically (:func:`atomic_path`): the file appears whole, or not at all."""
+    with atomic_path(path) as tmp, open(tmp, mode) as f:
+        yield f
+
+
+def save_figure(fig, path, **kwargs) -> None:
+    """``fig.savefig(path, **kwargs)`` atomically (:func:`atomic_path`), in the format of ``path``'s extension."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=os.path.splitext(os.fspath(path))[1][1:] or "png", **kwargs)
+
+
 def write_atomic(path, text: str) -> None:
     """Write ``text`` to ``path`` atomically (:func:`atomic_path`)."""
     with atomic_path(path) as tmp, open(tmp, "w") as f:

@@ -165,7 +165,7 @@ def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | N
     mesh = make_mesh(run.cfg.devices, batch_size_of(m.agent, run.cfg))
     params = jax.tree.map(lambda x: x[np.asarray(idx)], run.params)
     per = evaluate_models(run.cfg, run.agent, params, [run.models[i] for i in idx], per_model, mesh, episodes,
-                          resolve_physics(run.cfg.physics, mesh), run.dynamics)
+                          physics=resolve_physics(run.cfg.physics, mesh), dynamics=run.dynamics)
     names = [x.name for x in per_model[0].metrics]
     asked = ({n: 0.0 - float(v) for n, v in zip(names, np.atleast_1d(token))} if m.vector else float(token))
     out = {"run": run_dir, "method": m.name, "checkpoint_step": run.step, "target": asked, "episodes": episodes,

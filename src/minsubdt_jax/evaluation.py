@@ -14,7 +14,9 @@ The physics (``mjx``, ``mujoco``, ``auto``) and the env rules (``dynamics``: ``b
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -63,22 +65,46 @@ class EvalResult:
         return {**out, "returns": self.returns.tolist(), "costs": self.costs.tolist()}
 
 
-def score_episodes(env: str, observations, lengths, rewards, *, terminated, horizon: int, demo_costs=None, beta=1.0,
-                   alpha_max=None, learned=None, demo_features=None, dynamics: str = "brax", actions=None,
-                   metrics: tuple[CostMetric, ...] | None = None,
-                   extra_metrics: tuple[CostMetric, ...] = (), references=None) -> EvalResult:
-    """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored),
-    ``terminated [n]`` (ended by a fall, else by the horizon: costs treat the two apart, :mod:`minsubdt_jax.costs`).
+@dataclass(frozen=True)
+class Scoring:
+    """How episodes are scored (:func:`score_episodes`).
 
     With ``demo_costs [M, K]`` (the dataset's engineered features) each episode's min-subdominance (eq. 2, margin
     ``beta``, cap ``alpha_max``) against them is computed, and whether it beats their mean on every feature.
     With ``learned`` (a :class:`~minsubdt_jax.learned_costs.LearnedCosts`) and ``demo_features [M, K']``, the
-    min-subdominance on the learned features too. Normalised with ``references``
-    (:class:`~minsubdt_jax.references.References`: a dataset's own), else those of ``dynamics``. The cost
-    features are ``metrics``' (default: the env's, :func:`~minsubdt_jax.costs.cost_metrics`), from the
-    observations and ``actions [n, T, act]``; ``extra_metrics`` (``--eval-costs``) add columns that are reported
-    only: min-subdominance and beating the mean demo use ``metrics``' columns, which come first.
-    """
+    min-subdominance on the learned features too (for :func:`evaluate_policy`, lists of S: one per seed).
+    Normalised with ``references`` (:class:`~minsubdt_jax.references.References`: a dataset's own), else those of
+    ``dynamics`` (the env rules the episodes ran in). The cost features are ``metrics``' (default: the env's,
+    :func:`~minsubdt_jax.costs.cost_metrics`); ``extra_metrics`` (``--eval-costs``) add columns that are reported
+    only: min-subdominance and beating the mean demo use ``metrics``' columns, which come first."""
+
+    demo_costs: Any = None
+    beta: float = 1.0
+    alpha_max: float | None = None
+    learned: Any = None
+    demo_features: Any = None
+    metrics: tuple[CostMetric, ...] | None = None
+    extra_metrics: tuple[CostMetric, ...] = ()
+    dynamics: str = "brax"
+    references: Any = None
+
+    def of_seed(self, i: int) -> "Scoring":
+        """The scoring of seed ``i`` where the learned costs are per seed."""
+        if self.learned is None:
+            return self
+        return dataclasses.replace(self, learned=self.learned[i], demo_features=self.demo_features[i])
+
+
+def score_episodes(env: str, observations, lengths, rewards, *, terminated, horizon: int, actions=None,
+                   scoring: Scoring = Scoring()) -> EvalResult:
+    """Score episodes ``observations [n, T, obs]``, ``lengths [n]``, ``rewards [n, T]`` (padding ignored),
+    ``terminated [n]`` (ended by a fall, else by the horizon: costs treat the two apart, :mod:`minsubdt_jax.costs`),
+    as ``scoring`` says (:class:`Scoring`); the cost features are read from the observations and
+    ``actions [n, T, act]``."""
+    sc = scoring
+    demo_costs, beta, alpha_max, learned, demo_features = (sc.demo_costs, sc.beta, sc.alpha_max, sc.learned,
+                                                           sc.demo_features)
+    metrics, extra_metrics, dynamics, references = sc.metrics, sc.extra_metrics, sc.dynamics, sc.references
     lengths = np.asarray(lengths)
     valid = np.arange(np.shape(rewards)[1])[None, :] < lengths[:, None]
     returns = np.where(valid, np.asarray(rewards), 0.0).sum(1)
@@ -123,25 +149,17 @@ def episodes_to_run(num_episodes: int, mesh=None) -> int:
     return -(-num_episodes // size) * size
 
 
-def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int, seeds, demo_costs, beta=1.0,
-                    alpha_max=None, learned=None, demo_features=None, mesh=None, physics: str = "auto",
-                    dynamics: str = "brax", threads: int = 0, metrics=None, extra_metrics=(),
-                    references=None) -> list[EvalResult]:
+def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int, seeds, scoring: Scoring,
+                    mesh=None, physics: str = "auto", threads: int = 0) -> list[EvalResult]:
     """Roll out ``agent``'s policy for S models (``inputs [S, ...]``, :class:`~minsubdt_jax.agents.base.PolicyInputs`)
-    and score each seed's first ``num_episodes`` episodes against the demos (:func:`score_episodes`).
-    ``learned`` and ``demo_features``, when given, are lists of S (one cost model per seed). The episodes run in
-    ``physics`` under ``dynamics`` and are normalised with ``references`` (else that dynamics'); ``metrics`` are the demo
-    costs' (default: the env's)."""
+    and score each seed's first ``num_episodes`` episodes against the demos (:func:`score_episodes`, ``scoring``:
+    its learned costs, when given, one per seed). The episodes run in ``physics`` under ``scoring.dynamics``."""
     carry = agent.initial_carry(episodes_to_run(num_episodes, mesh))
     ro = rollout_seeds(env, agent.policy, inputs, carry, num_episodes=num_episodes, horizon=horizon, seeds=seeds,
-                       mesh=mesh, physics=physics, dynamics=dynamics, threads=threads)
+                       mesh=mesh, physics=physics, dynamics=scoring.dynamics, threads=threads)
     return [score_episodes(env, ro.observations[i, :num_episodes], ro.lengths[i, :num_episodes],
                            ro.rewards[i, :num_episodes], terminated=ro.terminated[i, :num_episodes],
-                           horizon=horizon, demo_costs=demo_costs, beta=beta, alpha_max=alpha_max,
-                           learned=None if learned is None else learned[i],
-                           demo_features=None if demo_features is None else demo_features[i], dynamics=dynamics,
-                           actions=ro.actions[i, :num_episodes], metrics=metrics, extra_metrics=extra_metrics,
-                           references=references)
+                           horizon=horizon, actions=ro.actions[i, :num_episodes], scoring=scoring.of_seed(i))
             for i in range(len(seeds))]
 
 

@@ -15,6 +15,7 @@ import sys
 import numpy as np
 
 from .rundir import exit_code, model_labels, read_metrics
+from .atomic import save_figure
 
 
 def curves(run_dir: str) -> dict:
@@ -75,7 +76,7 @@ def plot_curves(data: list[dict], png: str, labels: list[str]) -> None:
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=7, loc="best")
     fig.tight_layout()
-    fig.savefig(png)
+    save_figure(fig, png)
     plt.close(fig)
 
 

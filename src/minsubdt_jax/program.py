@@ -18,7 +18,7 @@ import numpy as np
 
 from .agents.base import PolicyInputs
 from .costs import cost_metrics
-from .evaluation import evaluate_policy
+from .evaluation import Scoring, evaluate_policy
 from .methods import Method
 from .parallel import available_bytes, replicate
 from .pipeline import Prepared
@@ -94,7 +94,7 @@ def stack_models(per_model: list[Prepared]):
     return data, jax.tree.map(lambda _: None, first).replace(**{k: 0 for k in mapped})
 
 
-def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared], mesh, episodes: int,
+def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared], mesh, episodes: int, *,
                     physics: str = "auto", dynamics: str = "brax") -> list[dict]:
     """Evaluate the M trained models (``params [M, ...]``, ``models``: their :class:`Model` records) on
     ``episodes`` episodes each, in one batched program per dataset (``physics``; in MJX the episodes split over
@@ -107,7 +107,7 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
             idx = [i for i, p in enumerate(per_model) if p.source is src]
             sub = jax.tree.map(lambda x: x[np.asarray(idx)], params)
             evs = evaluate_models(cfg, agent, sub, [models[i] for i in idx], [per_model[i] for i in idx], mesh,
-                                  episodes, physics, dynamics)
+                                  episodes, physics=physics, dynamics=dynamics)
             for i, ev in zip(idx, evs):
                 out[i] = ev
         return out
@@ -117,14 +117,13 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
                           rtg_scale=stack(lambda p: p.rtg_scale),
                           subtract_rewards=np.array([mo.method.subtract_rewards for mo in models], np.float32))
     learned = [p.learned for p in per_model] if any(p.learned for p in per_model) else None
+    scoring = Scoring(demo_costs=per_model[0].costs, beta=cfg.beta, alpha_max=cfg.alpha_max, learned=learned,
+                      demo_features=[p.features for p in per_model] if learned else None, metrics=per_model[0].metrics,
+                      extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else (), dynamics=dynamics,
+                      references=references_for(cfg.env, dynamics, per_model[0].source.references))
     evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
-                          seeds=[mo.seed + 10_000 for mo in models], demo_costs=per_model[0].costs, beta=cfg.beta,
-                          alpha_max=cfg.alpha_max, learned=learned,
-                          demo_features=[p.features for p in per_model] if learned else None, mesh=mesh,
-                          physics=physics, dynamics=dynamics, threads=cfg.physics_threads,
-                          metrics=per_model[0].metrics,
-                          extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else (),
-                          references=references_for(cfg.env, dynamics, per_model[0].source.references))
+                          seeds=[mo.seed + 10_000 for mo in models], scoring=scoring, mesh=mesh, physics=physics,
+                          threads=cfg.physics_threads)
     return [dict(ev.summary(), **mo.record(), target_return=np.asarray(p.target_return).tolist())
             for ev, mo, p in zip(evs, models, per_model)]
 

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .atomic import write_atomic  # noqa: F401  (the run's writes; re-exported)
+from .atomic import save_figure, write_atomic  # noqa: F401  (write_atomic: the run's writes; re-exported)
 
 DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 
@@ -287,5 +287,5 @@ def plot_learning_curve(metrics_path: str, png_path: str, title: str | None = No
     if title:
         fig.suptitle(title, fontsize=11)
     fig.tight_layout()
-    fig.savefig(png_path)
+    save_figure(fig, png_path)
     plt.close(fig)

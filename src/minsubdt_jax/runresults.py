@@ -16,14 +16,14 @@ from .evaluation import across_seeds
 from .program import eval_record, evaluate_models
 from .references import references_for
 from .rundir import json_text, plot_learning_curve, write_atomic
-from .runsetup import RunPlan
+from .runsetup import ModelData, RunPlan, Started, Trained
 
 METRICS_FILE_JSONL = "metrics.jsonl"  # the run's record: a line per chunk (its loss) and per evaluation
 
 
 def evaluate_run_models(run: RunPlan, agent, params, per_model, episodes: int) -> list[dict]:
-    return evaluate_models(run.cfg, agent, params, run.models, per_model, run.mesh, episodes, run.physics,
-                           run.dynamics)
+    return evaluate_models(run.cfg, agent, params, run.models, per_model, run.mesh, episodes, physics=run.physics,
+                           dynamics=run.dynamics)
 
 
 def periodic_eval(run: RunPlan, agent, state, step: int, per_model) -> dict:
@@ -37,10 +37,10 @@ def periodic_eval(run: RunPlan, agent, state, step: int, per_model) -> dict:
     return rec
 
 
-def finish_run(run: RunPlan, agent, state, step: int, start: int, seconds: float, preps, per_model, log,
-               loggers) -> dict:
+def finish_run(run: RunPlan, started: Started, trained: Trained, models: ModelData, log, loggers) -> dict:
     """The final evaluation, ``results.json`` and the learning-curve plot; the results' dictionary."""
-    cfg, methods = run.cfg, run.methods
+    cfg, methods, preps, per_model = run.cfg, run.methods, models.preps, models.per_model
+    agent, state, step, start, seconds = started.agent, trained.state, trained.step, started.start, trained.seconds
     describe = lambda m: {"name": m.name, "label": m.label, "agent": m.agent}  # noqa: E731
     summaries = {id(p): p.summary(cfg.env) for p in preps.values()}  # once per prepared data, not per model
     own = [summaries[id(p)] for p in per_model]
@@ -64,6 +64,11 @@ def finish_run(run: RunPlan, agent, state, step: int, start: int, seconds: float
                             f"{cfg.env} {cfg.dataset}: {cfg.method} ({cfg.seeds} seed{'s' * (cfg.seeds > 1)})")
     if run.verbose:
         print(f"wrote {run.out}/results.json", flush=True)
+        if cfg.preset == "quick":
+            print(f"This was a quick run (the default preset, quick: {cfg.steps} steps, {cfg.eval_episodes} evaluation "
+                  f"episodes). Table 1's setting is --preset study (10k steps, 100 episodes; critic agents their own), "
+                  f"e.g. python -m minsubdt_jax.train --env {cfg.env} --dataset {cfg.dataset} --method {cfg.method} "
+                  f"--preset study --seeds 3", flush=True)
     return results
 
 

@@ -111,16 +111,49 @@ def _ckpt_dir(out: str) -> str:
     return os.path.abspath(os.path.join(out, "checkpoints"))
 
 
-def prepare_models(run: RunPlan, metrics):
-    """``(preps, per_model, data, data_axis)``: each model's prepared data (one per dataset and method, and per seed
-    where the features are learned: they depend on the seed) and the program's stacked sampler arrays; the data
-    is checked to be the same in every process and, on resume, the run's."""
+@dataclass(frozen=True)
+class ModelData:
+    """Each model's prepared data (``preps``: one :class:`~minsubdt_jax.pipeline.Prepared` per dataset and method,
+    and per seed where the features are learned; ``per_model``: the one of each model) and the program's stacked
+    sampler arrays (``data``, the models' axis ``data_axis``)."""
+
+    preps: dict
+    per_model: list
+    data: object
+    data_axis: int | None
+
+
+@dataclass(frozen=True)
+class Started:
+    """What :func:`start_run` made: the agent, its optimiser ``tx``, the models' stacked ``state`` (restored on
+    resume), the checkpoint manager and the ``start`` step."""
+
+    agent: object
+    tx: object
+    state: object
+    mngr: object
+    start: int
+
+
+@dataclass(frozen=True)
+class Trained:
+    """What the training loop ends with: the models' ``state``, the ``step`` reached and the ``seconds`` it took."""
+
+    state: object
+    step: int
+    seconds: float
+
+
+def prepare_models(run: RunPlan, metrics) -> ModelData:
+    """Each model's prepared data (one per dataset and method, and per seed where the features are learned: they
+    depend on the seed) and the program's stacked sampler arrays; the data is checked to be the same in every
+    process and, on resume, the run's."""
     preps, per_model = prepare_each(run.cfg, run.models, run.sources, run.dynamics, metrics, run.verbose)
     data, data_axis = stack_models(per_model)
     assert_same_across_processes([np.asarray(x) for x in jax.tree.leaves(data)],
                                  "the training data (every process must load the same dataset)")
     check_same_data(run.out, _sha256(run), run.resume)
-    return preps, per_model, data, data_axis
+    return ModelData(preps, per_model, data, data_axis)
 
 
 def prepare_each(cfg: Config, models: list, sources: list, dynamics: str, metrics, verbose: bool):
@@ -152,10 +185,9 @@ def _sha256(run: RunPlan) -> str:
     return "+".join(src.sha256 for src in run.sources)
 
 
-def start_run(run: RunPlan, lock: RunLock):
+def start_run(run: RunPlan, lock: RunLock) -> Started:
     """The run's first writes (lock, ``config.json``, ``cost_metrics.json``, ``dataset.json``), the agent, its
-    optimiser and the models' states, restored from the last checkpoint on resume: ``(agent, tx, state, mngr,
-    start step)``."""
+    optimiser and the models' states, restored from the last checkpoint on resume."""
     cfg, out = run.cfg, run.out
     if run.main:
         lock.acquire(out)  # a second process into the same --out stops here, having written nothing
@@ -182,4 +214,4 @@ def start_run(run: RunPlan, lock: RunLock):
               f"{cfg.seeds} seed(s)) in one program; batch split over {run.mesh.size} device(s) in "
               f"{jax.process_count()} process(es): {run.batch_size // run.mesh.size} "
               f"{'transitions' if AGENTS[run.methods[0].agent].transitions else 'sequences'} each", flush=True)
-    return agent, tx, state, mngr, start
+    return Started(agent, tx, state, mngr, start)

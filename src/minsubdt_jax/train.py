@@ -47,7 +47,7 @@ from .methods import RETURNS_ALIASES
 from .parallel import gather, replicate
 from .rundir import RunLock, exit_code, json_text, truncate_metrics
 from .runresults import METRICS_FILE_JSONL, finish_run, periodic_eval
-from .runsetup import RunPlan, plan_run, prepare_models, start_run
+from .runsetup import ModelData, RunPlan, Started, Trained, plan_run, prepare_models, start_run
 
 
 def train(cfg: Config, resume: bool = False, verbose: bool = True,
@@ -69,12 +69,13 @@ def train(cfg: Config, resume: bool = False, verbose: bool = True,
     lock = RunLock()
     try:
         run = plan_run(cfg, resume, verbose, metrics)
-        preps, per_model, data, data_axis = prepare_models(run, metrics)
-        agent, tx, state, mngr, start = start_run(run, lock)
-        state, data = replicate((state, data), run.mesh)
-        log, loggers = _logger(run, start, progress_fn)
-        state, step, seconds = train_loop(run, agent, tx, state, data, data_axis, mngr, start, log, per_model)
-        return finish_run(run, agent, state, step, start, seconds, preps, per_model, log, loggers)
+        models = prepare_models(run, metrics)
+        started = start_run(run, lock)
+        state, data = replicate((started.state, models.data), run.mesh)
+        started, models = dataclasses.replace(started, state=state), dataclasses.replace(models, data=data)
+        log, loggers = _logger(run, started.start, progress_fn)
+        trained = train_loop(run, started, models, log)
+        return finish_run(run, started, trained, models, log, loggers)
     finally:
         lock.release()
 
@@ -99,11 +100,12 @@ def _logger(run: RunPlan, start: int, progress_fn):
     return log, loggers
 
 
-def train_loop(run: RunPlan, agent, tx, state, data, data_axis, mngr, start: int, log, per_model):
+def train_loop(run: RunPlan, started: Started, models: ModelData, log) -> Trained:
     """Chunks of ``cfg.chunk_steps`` steps until ``cfg.steps`` (:func:`~minsubdt_jax.loop.chunk_loop`: Ctrl-C stops
     after the current chunk's checkpoint), each in ~10 dispatches so the bar moves, its loss logged, an evaluation
-    every ``cfg.eval_every`` steps, a checkpoint after each. ``(state, step, seconds)``."""
-    cfg = run.cfg
+    every ``cfg.eval_every`` steps, a checkpoint after each."""
+    cfg, agent, tx, mngr = run.cfg, started.agent, started.tx, started.mngr
+    state, data, data_axis = started.state, models.data, models.data_axis
     chunks, t0 = {}, time.time()
 
     def chunk(step, bar):
@@ -131,7 +133,7 @@ def train_loop(run: RunPlan, agent, tx, state, data, data_axis, mngr, start: int
              **({"loss_parts": {k: float(np.mean(gather(v))) for k, v in parts.items()}} if parts else {}),
              "chunk_seconds": time.time() - tc})
         if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
-            log(periodic_eval(run, agent, state, step, per_model))
+            log(periodic_eval(run, agent, state, step, models.per_model))
         bar.set_postfix(loss=f"{per_seed.mean():.4f}")
         return step
 
@@ -139,8 +141,8 @@ def train_loop(run: RunPlan, agent, tx, state, data, data_axis, mngr, start: int
         mngr.save(step, args=ocp.args.StandardSave(state))
 
     resume = f"python -m minsubdt_jax.train --config {os.path.join(run.out, 'config.json')} --resume"
-    step = chunk_loop(start, cfg.steps, chunk, save, resume=resume, verbose=run.verbose)
-    return state, step, time.time() - t0
+    step = chunk_loop(started.start, cfg.steps, chunk, save, resume=resume, verbose=run.verbose)
+    return Trained(state, step, time.time() - t0)
 
 
 def parse_args(argv=None) -> tuple[Config, bool]:

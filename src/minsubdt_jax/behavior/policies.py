@@ -32,6 +32,7 @@ from ..envs import ENVS, PHYSICS, env_spec, resolve_physics
 from ..rundir import exit_code
 from .snapshots import POLICY_DIR, load_manifest, load_snapshot, measure_return
 from .config import SACConfig
+from ..atomic import atomic_open
 
 MEDIUM_RANGE = (0.35, 0.6)
 
@@ -94,7 +95,7 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
                      f"python -m minsubdt_jax.behavior.policies --env {name} --run {run} --medium-ratio "
                      f"{medium_ratio} --replay {replay} --reference-episodes {reference_episodes} --physics {physics}"],
     }
-    with open(os.path.join(out, "manifest.json"), "w") as f:
+    with atomic_open(os.path.join(out, "manifest.json")) as f:
         json.dump(manifest, f, indent=1)
     load_manifest.cache_clear()
     say(f"medium step {medium['step']} (ratio {medium['ratio']:.2f}); replay steps "

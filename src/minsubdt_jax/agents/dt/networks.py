@@ -69,9 +69,10 @@ class HashDropout(nn.Module):
         return hash_dropout(self.make_rng("dropout"), self.rate, x)
 
 
-def _attention(query, key, value, bias=None, mask=None, dropout_rng=None, dropout_rate=0.0, deterministic=False,
+def _attention(query, key, value, *, bias=None, mask=None, dropout_rng=None, dropout_rate=0.0, deterministic=False,
                dtype=None, precision=None, **_):
-    """``flax.linen.dot_product_attention`` with :func:`hash_dropout` on the attention weights."""
+    """``flax.linen.dot_product_attention`` with :func:`hash_dropout` on the attention weights (flax passes
+    everything but the query, key and value by keyword)."""
     w = nn.dot_product_attention_weights(query, key, bias, mask, dtype=dtype, precision=precision)
     if not deterministic and dropout_rate > 0.0:
         w = hash_dropout(dropout_rng, dropout_rate, w)
