@@ -55,13 +55,14 @@ def name_of(a) -> str:
 
 
 def run(a) -> dict:
-    from minsubdt_jax.config import PRESETS, validate
+    from minsubdt_jax.agents import preset_config
+    from minsubdt_jax.config import validate
     from minsubdt_jax.train import train
 
     out = os.path.join(a.runs_root, name_of(a))
     given = {"warmup_steps": a.warmup, "brac_alpha": a.brac_alpha, "pretrain_steps": a.pretrain_steps,
              "learning_rate": a.lr}  # flags left unset keep the model's preset
-    cfg = dataclasses.replace(PRESETS[MODELS[a.model]], env=a.env, dataset=a.dataset, method=a.methods, seed=a.seed,
+    cfg = dataclasses.replace(preset_config(MODELS[a.model], a.methods), env=a.env, dataset=a.dataset, seed=a.seed,
                               seeds=a.seeds, steps=a.steps, eval_every=a.eval_every, eval_episodes_periodic=a.episodes,
                               eval_episodes=a.episodes, context_len=a.context, chunk_steps=a.chunk_steps,
                               physics=a.physics, lr_schedule=a.lr_schedule, ema_decay=a.ema, costs=a.costs,

@@ -39,8 +39,9 @@ RESULTS = os.path.join(HERE, "results", "peer_dt")
 
 
 def _cfg(a):
-    from minsubdt_jax.config import PRESETS
-    return dataclasses.replace(PRESETS[a.preset], steps=a.steps or PRESETS[a.preset].steps)
+    from minsubdt_jax.agents import preset_config
+    cfg = preset_config(a.preset, "dt")
+    return dataclasses.replace(cfg, steps=a.steps or cfg.steps)
 
 
 def _lr_factor(cfg, step: int) -> float:
@@ -178,12 +179,11 @@ def time_steps(a) -> dict:
     """Seconds per training step of both DTs at ``--preset``, one model each, one after the other on this machine:
     d3rlpy's ``update`` (with its batch sampling) and our jitted step (sampling included, ``lax.scan`` chunks)."""
     import d3rlpy
-    import jax
     import torch
 
-    from minsubdt_jax.agents.base import init_state, make_optimizer, make_train_chunk
+    from minsubdt_jax.agents.base import make_optimizer
     from minsubdt_jax.agents.dt.agent import make_dt_agent
-    from minsubdt_jax.data import resolve_dataset, sampler_data
+    from minsubdt_jax.data import resolve_dataset
     torch.set_num_threads(os.cpu_count())
     cfg = _cfg(a)
     d = resolve_dataset(a.env, a.dataset).data
@@ -196,18 +196,28 @@ def time_steps(a) -> dict:
         algo.update(buffer.sample_trajectory_batch(cfg.batch_size, length=cfg.context_len))
     peer = (time.perf_counter() - t0) / a.steps
     agent, tx = make_dt_agent(cfg, d.observations.shape[-1], d.actions.shape[-1], cfg.episode_length), make_optimizer(cfg)
-    data = sampler_data(d, d.rewards, *d.state_stats())
-    chunk = make_train_chunk(agent, tx, cfg.batch_size, a.steps)
-    state = jax.block_until_ready(chunk(init_state(agent, tx, jax.random.PRNGKey(0)), data)[0])  # compile
-    t0 = time.perf_counter()
-    jax.block_until_ready(chunk(state, data))
-    ours = (time.perf_counter() - t0) / a.steps
+    ours = ours_seconds_per_step(agent, tx, cfg.batch_size, d, a.steps)
     out = {"preset": a.preset, "steps": a.steps, "d3rlpy_s_per_step": peer, "ours_s_per_step": ours,
            "ratio": peer / ours, "cores": os.cpu_count(), "torch_threads": torch.get_num_threads()}
     os.makedirs(RESULTS, exist_ok=True)
     write_atomic(os.path.join(RESULTS, f"time-{a.preset}.json"), json.dumps(out, indent=1))
     print(json.dumps(out))
     return out
+
+
+def ours_seconds_per_step(agent, tx, batch_size: int, d, steps: int) -> float:
+    """Seconds per step of our jitted training (sampling included, one scanned chunk of ``steps``) of ``agent`` on
+    the episodes ``d``, after a chunk that compiles it."""
+    import jax
+
+    from minsubdt_jax.agents.base import init_state
+    from minsubdt_jax.data import sampler_data
+    chunk = agent.make_chunk(tx, batch_size, steps)
+    data = sampler_data(d, d.rewards, *d.state_stats())
+    state = jax.block_until_ready(chunk(init_state(agent, tx, jax.random.PRNGKey(0)), data)[0])  # compile
+    t0 = time.perf_counter()
+    jax.block_until_ready(chunk(state, data))
+    return (time.perf_counter() - t0) / steps
 
 
 def report(a) -> str:

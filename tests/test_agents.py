@@ -179,3 +179,25 @@ def test_each_agent_declares_exactly_the_agent_settings_it_reads():
     with pytest.raises(ValueError, match="--precision bf16 is for the DT and the critic agents"):
         check_agent_settings(dataclasses.replace(cfg, method="bc-mlp", precision="bf16"), "mlp")
     assert check_agent_settings(dataclasses.replace(cfg, method="iql", precision="bf16"), "iql") is AGENTS["iql"]
+
+
+def test_an_agents_per_dataset_settings_fill_what_the_config_leaves_unset():
+    """BEAR's kernel is an agent's setting, not an env's (issue 75): its record chooses it per env as its
+    reference did (gaussian for halfcheetah, laplacian for the others and for a new env), and a config that sets
+    it wins."""
+    import dataclasses
+
+    from minsubdt_jax.agents import AGENTS, make_agent
+    from minsubdt_jax.config import PRESETS
+
+    def kernel(**kw):
+        return make_agent("bear", dataclasses.replace(PRESETS["smoke"], method="bear", **kw), 17, 6, 100).kernel
+
+    assert [kernel(env=e) for e in ("halfcheetah", "walker2d", "hopper")] == ["gaussian", "laplacian", "laplacian"]
+    assert kernel(env="halfcheetah", bear_kernel="laplacian") == "laplacian"
+    info = AGENTS["bear"]
+    assert info.settings_for("swimmer", "medium") == {"bear_kernel": "laplacian"}
+    specific = dataclasses.replace(info, data_settings={**info.data_settings,
+                                                        ("halfcheetah", "medium"): {"bear_kernel": "laplacian"}})
+    assert specific.settings_for("halfcheetah", "medium")["bear_kernel"] == "laplacian"
+    assert specific.settings_for("halfcheetah", "expert")["bear_kernel"] == "gaussian"

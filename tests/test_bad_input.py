@@ -107,7 +107,7 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     not only MJX); `train --costs list` prints the metrics (it was an error); `data --help` explains --env, --seed
     and --horizon; TensorBoard tags every per-model list `<metric>/<method>-s<seed>` (the loss was tagged
     `loss_per_seed/0`); the learning curve's figure is titled with env, dataset and method."""
-    from minsubdt_jax import loggers, rundir
+    from minsubdt_jax import loggers, plot
     from minsubdt_jax.train import parse_args
     from minsubdt_jax.data.__main__ import main as data_main
     from minsubdt_jax.methods import METHODS
@@ -134,7 +134,7 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     titles = []
     import matplotlib.figure
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *_a, **_k: titles.append(fig._suptitle))
-    rundir.plot_learning_curve(str(tmp_path / "metrics.jsonl"), str(tmp_path / "c.png"), "hopper medium: dt (1 seed)")
+    plot.plot_learning_curve(str(tmp_path / "metrics.jsonl"), str(tmp_path / "c.png"), "hopper medium: dt (1 seed)")
     assert titles[0].get_text() == "hopper medium: dt (1 seed)"
 
 

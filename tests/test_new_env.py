@@ -20,6 +20,17 @@ def swimmer(request):
     return SWIMMER
 
 
+def test_an_env_registered_after_the_gymnasium_envs_is_one_too(swimmer):
+    """``envs.gym_env`` registered the envs known when it was imported, so a later one was no gymnasium env."""
+    import gymnasium as gym
+
+    from minsubdt_jax.envs.gym_env import IDS
+
+    env = gym.make(IDS[("swimmer", "d4rl")])
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (8,) and env.step(np.zeros(2, np.float32))[0].shape == (8,)
+
+
 def test_a_registered_env_steps_as_gymnasium_swimmer_v4(swimmer):
     """Our rules on C MuJoCo (a body in the floor's plane: x and y left out of the observation, no height), replayed
     in gymnasium's ``Swimmer-v4`` from each episode's reset state with its actions: the same observations and

@@ -63,6 +63,9 @@ class Config:
     # steps of a critic agent's first stage: BRAC-v's behaviour policy (default --steps / 5), BEAR's MMD-only
     # warm-up (default --steps / 25: the reference's 40k of 1M)
     pretrain_steps: int | None = None
+    # BEAR's MMD kernel, laplacian | gaussian; unset: the agent's choice for the env (its reference's: gaussian for
+    # halfcheetah, laplacian otherwise; minsubdt_jax.agents.AGENTS["bear"].data_settings)
+    bear_kernel: str | None = None
     # optimisation (DT paper: AdamW 1e-4, wd 1e-4, 10k warm-up steps, clip 0.25, batch 64)
     learning_rate: float = 1e-4  # AdamW's peak learning rate
     weight_decay: float = 1e-4  # AdamW's weight decay
@@ -172,7 +175,8 @@ RUN_ONLY_FIELDS = frozenset({"env", "dataset", "method", "seed", "seeds", "out",
 
 LR_SCHEDULES = ("constant", "cosine")
 CHOICES = {"env": tuple(ENVS), "preset": tuple(PRESETS), "physics": PHYSICS,
-           "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES, "precision": ("f32", "tf32", "bf16")}
+           "dynamics": DYNAMICS, "lr_schedule": LR_SCHEDULES, "precision": ("f32", "tf32", "bf16"),
+           "bear_kernel": ("laplacian", "gaussian")}
 
 
 # The range of each bounded number: (kind, low, high, the range as its error says it), high None: no upper bound.
@@ -232,7 +236,8 @@ def _check_names(cfg: Config) -> None:
     metrics, loggers."""
     for name, allowed in CHOICES.items():
         allowed = tuple(ENVS) if name == "env" else allowed  # with any registered since (envs.register_env)
-        if getattr(cfg, name) not in allowed and not (name == "dynamics" and cfg.dynamics is None):
+        unset = name in ("dynamics", "bear_kernel") and getattr(cfg, name) is None  # the data's, the agent's
+        if getattr(cfg, name) not in allowed and not unset:
             raise ValueError(f"--{name.replace('_', '-')} must be one of {list(allowed)}, got {getattr(cfg, name)!r}")
     bad = [m for m in cfg.methods if m not in METHODS]
     if bad or len(set(cfg.methods)) != len(cfg.methods):

@@ -105,19 +105,29 @@ def _energy(s: EnvSpec) -> CostMetric:
                               "actions in [-1, 1])")
 
 
+def _layout(s: EnvSpec, field: str, metric: str) -> int:
+    """The observation index ``field`` of ``s`` (:class:`~minsubdt_jax.envs.EnvSpec`) a metric reads; one error where
+    the env has none."""
+    i = getattr(s, field)
+    if i is None:
+        raise ValueError(f"cost metric {metric!r} reads the observation's {field.replace('_', ' ')}; {s.name} has none")
+    return i
+
+
 def _height_steadiness(s: EnvSpec) -> CostMetric:
-    i = s.x_velocity_index + 1
+    i = _layout(s, "z_velocity_index", "height_steadiness")
     return CostMetric("height_steadiness", lambda o, a: jnp.abs(o[..., i]), 0.0, 3.0,
                       meaning="torso height held steady: |v_z| of the torso, from 0 to 3 m/s")
 
 
 def _uprightness(s: EnvSpec) -> CostMetric:
-    return CostMetric("uprightness", lambda o, a: jnp.abs(o[..., 1]), 0.0, 1.0,
+    i = _layout(s, "pitch_index", "uprightness")
+    return CostMetric("uprightness", lambda o, a: jnp.abs(o[..., i]), 0.0, 1.0,
                       meaning="torso upright: |pitch angle| of the torso, from 0 to 1 rad")
 
 
 def _joint_speed(s: EnvSpec) -> CostMetric:
-    i, hi = s.x_velocity_index + 3, s.joint_speed_hi
+    i, hi = _layout(s, "joint_velocity_start", "joint_speed"), s.joint_speed_hi
     return CostMetric("joint_speed", lambda o, a: jnp.mean(jnp.abs(o[..., i:]), axis=-1), 0.0, hi,
                       meaning=f"smooth joints: mean |angular velocity| of the leg joints, from 0 to {hi:g} rad/s")
 

@@ -43,7 +43,7 @@ from .methods import get_method
 from .parallel import available_bytes, make_mesh
 from .pipeline import load
 from .program import evaluate_models, program_models
-from .rundir import DATASET_FILE, METRICS_FILE, exit_code, json_text, write_atomic
+from .rundir import DATASET_FILE, COST_METRICS_FILE, exit_code, json_text, write_atomic
 from .runsetup import prepare_each, program_agent
 
 
@@ -65,7 +65,7 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
     """Read ``run_dir`` (``config.json``, ``dataset.json``, the last checkpoint) and rebuild what evaluating its
     models needs. ``metrics``: the cost metrics, for a run trained on metrics of one's own. Raises ValueError on a
     folder that is not a finished or checkpointed run, or whose dataset has changed since."""
-    paths = {n: os.path.join(run_dir, n) for n in ("config.json", DATASET_FILE, METRICS_FILE, "checkpoints")}
+    paths = {n: os.path.join(run_dir, n) for n in ("config.json", DATASET_FILE, COST_METRICS_FILE, "checkpoints")}
     missing = [n for n, p in paths.items() if not os.path.exists(p)]
     if missing:
         raise ValueError(f"{run_dir}: not a run directory with a checkpoint (no {', '.join(missing)})")
@@ -75,9 +75,9 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
     with open(paths[DATASET_FILE]) as f:
         recorded = json.load(f)
     chosen = cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)
-    with open(paths[METRICS_FILE]) as f:
+    with open(paths[COST_METRICS_FILE]) as f:
         if json.load(f) != [m.record() for m in chosen]:
-            raise ValueError(f"{run_dir}: the run trained on other cost metrics ({METRICS_FILE}); give the metrics of "
+            raise ValueError(f"{run_dir}: the run trained on other cost metrics ({COST_METRICS_FILE}); give the metrics of "
                              f"one's own again: load_policy(run_dir, metrics=[...])")
     source = load(cfg, verbose=False, physics=recorded.get("recorded_physics"))
     if source.sha256 != recorded["sha256"]:

@@ -80,6 +80,49 @@ def plot_curves(data: list[dict], png: str, labels: list[str]) -> None:
     plt.close(fig)
 
 
+def plot_learning_curve(metrics_path: str, png_path: str, title: str | None = None) -> None:
+    """From ``metrics.jsonl``: the training loss against step and, when the log holds evaluations, the normalised
+    score and min-subdominance against step, one line per method (mean over its seeds, band from the lowest to
+    the highest seed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_metrics(metrics_path)
+    losses = [r for r in rows if "loss" in r]
+    evals = [r for r in rows if "eval_normalized_score" in r]
+    fig, axes = plt.subplots(1, 3 if evals else 1, figsize=(13 if evals else 5, 3.2), dpi=100, squeeze=False)
+    ax = axes[0, 0]
+    ax.plot([r["step"] for r in losses], [r["loss"] for r in losses], marker=".")
+    ax.set(xlabel="gradient step", ylabel="training loss", yscale="log")
+    ax.set_title("loss\n ", fontsize=10)
+    for ax, key, title in [(a, k, t) for a, (k, t) in zip(axes[0, 1:], [
+            ("eval_normalized_score", "normalised score"), ("eval_min_subdominance", "min-subdominance vs demos")])]:
+        steps = [r["step"] for r in evals]
+        v = np.array([r[key] for r in evals], float)  # [evaluations, models]
+        names = model_labels(evals[0], v.shape[1])
+        final = [i for i, r in enumerate(evals) if r.get("final")]
+        for name in dict.fromkeys(names):
+            cols = [j for j, n in enumerate(names) if n == name]
+            w = v[:, cols]
+            ax.plot(steps, w.mean(1), marker="o", label=name if len(set(names)) > 1 else None)
+            ax.fill_between(steps, w.min(1), w.max(1), alpha=0.25)
+            ax.plot([steps[i] for i in final], w.mean(1)[final], "k*", markersize=10)
+        n = v.shape[1] // len(set(names))
+        ax.set_xlabel("gradient step")
+        ax.set_title(f"{title}\n★ final evaluation; {n} seed{'s' if n > 1 else ''}", fontsize=10)
+        if len(set(names)) > 1:
+            ax.legend(loc="best", fontsize=8)
+    for ax in axes[0]:
+        ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    save_figure(fig, png_path)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m minsubdt_jax.plot", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -15,9 +15,8 @@ import tempfile
 import threading
 from typing import Callable
 
-import numpy as np
 
-from .atomic import save_figure, write_atomic  # noqa: F401  (write_atomic: the run's writes; re-exported)
+from .atomic import write_atomic  # noqa: F401  (the run's writes; re-exported)
 
 DATASET_FILE = "dataset.json"  # the identity (content hash) of the data a run trains on
 
@@ -62,20 +61,21 @@ def check_same_data(out: str, sha256: str, resume: bool) -> None:
                          f"{sha256[:12]}…)")
 
 
-METRICS_FILE = "cost_metrics.json"  # the cost metrics a run trains on (a user's own ones cannot be named in --costs)
+# the cost metrics a run trains on (a user's own ones cannot be named in --costs)
+COST_METRICS_FILE = "cost_metrics.json"
 
 
 def check_same_metrics(out: str, records: list[dict], resume: bool) -> None:
     """On resume, the cost metrics (their ``CostMetric.record()``) must be those the run started on: a run trained
     through the library on a metric of one's own, resumed from the CLI, would go on with the defaults."""
-    path = os.path.join(out, METRICS_FILE)
+    path = os.path.join(out, COST_METRICS_FILE)
     if not resume or not os.path.exists(path):  # a run of an older version records none
         return
     with open(path) as f:
         saved = json.load(f)
     if saved != records:
         names = lambda rs: ", ".join(r["name"] for r in rs)  # noqa: E731
-        raise ValueError(f"--resume: the run trained on the cost metrics {names(saved)} ({METRICS_FILE}), not on "
+        raise ValueError(f"--resume: the run trained on the cost metrics {names(saved)} ({COST_METRICS_FILE}), not on "
                          f"{names(records)}; a metric of one's own is given again with train(..., metrics=[...]), "
                          f"which the command line cannot do")
 
@@ -246,46 +246,3 @@ def model_labels(record: dict, n: int) -> list[str]:
     program over several datasets), or ``run`` for an older record without them."""
     methods = record.get("eval_method") or ["run"] * n
     return [f"{d}/{m}" for d, m in zip(record["eval_dataset"], methods)] if "eval_dataset" in record else methods
-
-
-def plot_learning_curve(metrics_path: str, png_path: str, title: str | None = None) -> None:
-    """From ``metrics.jsonl``: the training loss against step and, when the log holds evaluations, the normalised
-    score and min-subdominance against step, one line per method (mean over its seeds, band from the lowest to
-    the highest seed)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = read_metrics(metrics_path)
-    losses = [r for r in rows if "loss" in r]
-    evals = [r for r in rows if "eval_normalized_score" in r]
-    fig, axes = plt.subplots(1, 3 if evals else 1, figsize=(13 if evals else 5, 3.2), dpi=100, squeeze=False)
-    ax = axes[0, 0]
-    ax.plot([r["step"] for r in losses], [r["loss"] for r in losses], marker=".")
-    ax.set(xlabel="gradient step", ylabel="training loss", yscale="log")
-    ax.set_title("loss\n ", fontsize=10)
-    for ax, key, title in [(a, k, t) for a, (k, t) in zip(axes[0, 1:], [
-            ("eval_normalized_score", "normalised score"), ("eval_min_subdominance", "min-subdominance vs demos")])]:
-        steps = [r["step"] for r in evals]
-        v = np.array([r[key] for r in evals], float)  # [evaluations, models]
-        names = model_labels(evals[0], v.shape[1])
-        final = [i for i, r in enumerate(evals) if r.get("final")]
-        for name in dict.fromkeys(names):
-            cols = [j for j, n in enumerate(names) if n == name]
-            w = v[:, cols]
-            ax.plot(steps, w.mean(1), marker="o", label=name if len(set(names)) > 1 else None)
-            ax.fill_between(steps, w.min(1), w.max(1), alpha=0.25)
-            ax.plot([steps[i] for i in final], w.mean(1)[final], "k*", markersize=10)
-        n = v.shape[1] // len(set(names))
-        ax.set_xlabel("gradient step")
-        ax.set_title(f"{title}\n★ final evaluation; {n} seed{'s' if n > 1 else ''}", fontsize=10)
-        if len(set(names)) > 1:
-            ax.legend(loc="best", fontsize=8)
-    for ax in axes[0]:
-        ax.grid(alpha=0.3)
-    if title:
-        fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    save_figure(fig, png_path)
-    plt.close(fig)

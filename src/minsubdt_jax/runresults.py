@@ -15,7 +15,8 @@ from .envs import physics_record
 from .evaluation import across_seeds
 from .program import eval_record, evaluate_models
 from .references import references_for
-from .rundir import json_text, plot_learning_curve, write_atomic
+from .plot import plot_learning_curve
+from .rundir import json_text, write_atomic
 from .runsetup import ModelData, RunPlan, Started, Trained
 
 METRICS_FILE_JSONL = "metrics.jsonl"  # the run's record: a line per chunk (its loss) and per evaluation

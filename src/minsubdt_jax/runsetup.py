@@ -23,7 +23,7 @@ from .methods import get_method
 from .parallel import assert_same_across_processes, init_distributed, is_main_process, make_mesh
 from .pipeline import load, prepare
 from .program import check_memory, program_models, stack_models
-from .rundir import (DATASET_FILE, METRICS_FILE, RunLock, check_run_dir, check_same_data, check_same_metrics,
+from .rundir import (DATASET_FILE, COST_METRICS_FILE, RunLock, check_run_dir, check_same_data, check_same_metrics,
                      checkpoint_manager, json_text, write_atomic)
 
 # Fields that may differ between a run and its resumption.
@@ -47,7 +47,7 @@ class RunPlan:
     mesh: object
     physics: str
     batch_size: int
-    chosen: list
+    metric_records: list  # the cost metrics' records (CostMetric.record), what cost_metrics.json holds
     sources: list
     dynamics: str
     dynamics_how: dict
@@ -90,8 +90,8 @@ def plan_run(cfg: Config, resume: bool, verbose: bool, metrics) -> RunPlan:
     physics = resolve_physics(cfg.physics, mesh)
     if metrics is not None and cfg.costs is not None:
         raise ValueError("give the cost metrics once: as cfg.costs (names) or as train(..., metrics=...)")
-    chosen = [m.record() for m in cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)]  # checked
-    check_same_metrics(out, chosen, resume)  # before anything is written
+    metric_records = [m.record() for m in cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)]  # checked
+    check_same_metrics(out, metric_records, resume)  # before anything is written
     verbose = verbose and main
     sources = [load(dataclasses.replace(cfg, dataset=d), verbose, physics) for d in cfg.datasets]
     found = [file_dynamics(src, cfg.env, cfg.dynamics) for src in sources]
@@ -103,7 +103,7 @@ def plan_run(cfg: Config, resume: bool, verbose: bool, metrics) -> RunPlan:
     if verbose:
         print(f"evaluation in {dynamics} dynamics ({dynamics_how['how']}), {physics} physics", flush=True)
     models = program_models(methods, list(range(cfg.seed, cfg.seed + cfg.seeds)), cfg.datasets)
-    return RunPlan(cfg, methods, models, out, resume, main, verbose, mesh, physics, batch_size, chosen, sources,
+    return RunPlan(cfg, methods, models, out, resume, main, verbose, mesh, physics, batch_size, metric_records, sources,
                    dynamics, dynamics_how)
 
 
@@ -192,7 +192,7 @@ def start_run(run: RunPlan, lock: RunLock) -> Started:
     if run.main:
         lock.acquire(out)  # a second process into the same --out stops here, having written nothing
         write_atomic(os.path.join(out, "config.json"), cfg.to_json())
-        write_atomic(os.path.join(out, METRICS_FILE), json_text(run.chosen, indent=2))
+        write_atomic(os.path.join(out, COST_METRICS_FILE), json_text(run.metric_records, indent=2))
         record = lambda src: {"path": src.path, "sha256": src.sha256, "episodes": src.data.num_trajectories,  # noqa
                               "transitions": src.data.num_transitions, "dynamics": run.dynamics,
                               "recorded_physics": src.physics}
@@ -200,7 +200,7 @@ def start_run(run: RunPlan, lock: RunLock) -> Started:
             record(run.sources[0]) if len(run.sources) == 1 else
             {"sha256": _sha256(run), "dynamics": run.dynamics, "datasets": [record(src) for src in run.sources]},
             indent=2))
-    agent = program_agent(cfg, run.methods, run.sources, len(run.chosen))
+    agent = program_agent(cfg, run.methods, run.sources, len(run.metric_records))
     tx = optimizer_for(agent, cfg)
     state = init_seed_states(agent, tx, [mo.seed for mo in run.models], ema=cfg.ema_decay > 0)
     mngr = checkpoint_manager(_ckpt_dir(out), keep=2)

@@ -57,6 +57,9 @@ class AgentInfo:
       revision: the revision of its model's code where a change made it learn differently (the DT's
         ``DT_REVISION``, recorded in every results.json as ``dt_revision``): the experiments never keep or pool
         results of two revisions as one.
+      data_settings: its own values per dataset, ``{(env, dataset): {field: value}}`` (``"*"``: any), for the
+        fields of its own that a config leaves unset (None): CORL and ReBRAC tune per dataset. The most specific
+        match wins (:meth:`settings_for`); :func:`make_agent` fills them in.
     """
 
     make: Callable
@@ -67,6 +70,15 @@ class AgentInfo:
     one_dataset: bool = False
     step_bytes: Callable | None = None
     revision: int | None = None
+    data_settings: dict = field(default_factory=dict)
+
+    def settings_for(self, env: str, dataset: str) -> dict:
+        """Its :attr:`data_settings` for ``env`` and ``dataset``: ``("*", "*")`` first, then the env's, then the
+        dataset's, then the pair's, each over the ones before."""
+        out = {}
+        for key in (("*", "*"), (env, "*"), ("*", dataset), (env, dataset)):
+            out.update(self.data_settings.get(key, {}))
+        return out
 
 
 AGENTS = {
@@ -82,8 +94,11 @@ AGENTS = {
     "brac": AgentInfo(make_brac_agent, _CRITIC | {"brac_alpha", "pretrain_steps"}, transitions=True,
                       fixed_steps=True),
     # flat by 42k on walker medium on an H200 (docs/convergence.md); a GPU's column (issue 58)
-    "bear": AgentInfo(make_bear_agent, _CRITIC | {"pretrain_steps"}, {"study": dict(_STUDY, steps=60_000)},
-                      transitions=True, fixed_steps=True),
+    "bear": AgentInfo(make_bear_agent, _CRITIC | {"pretrain_steps", "bear_kernel"},
+                      {"study": dict(_STUDY, steps=60_000)}, transitions=True, fixed_steps=True,
+                      # the reference's kernel per env (d4rl_evaluations bear/, d3rlpy's reproduction)
+                      data_settings={("*", "*"): {"bear_kernel": "laplacian"},
+                                     ("halfcheetah", "*"): {"bear_kernel": "gaussian"}}),
     # 200 iterations of the reference's 1200 steps; its iterations swing, so a longer average
     "awr": AgentInfo(make_awr_agent, _CRITIC - {"tau"},
                      {"study": dict(_STUDY, steps=240_000, chunk_steps=1200, ema_decay=0.9999)},
@@ -130,8 +145,14 @@ def batch_size_of(name: str, cfg) -> int:
 
 
 def make_agent(name: str, cfg, obs_dim: int, act_dim: int, max_timestep: int, return_dim: int = 0):
-    """The agent registered as ``name``, sized for the data; ``return_dim`` K > 0: a DT with a return token per cost
-    metric (a vector method, :mod:`minsubdt_jax.methods`)."""
+    """The agent registered as ``name``, sized for the data, with its per-dataset settings for the fields ``cfg``
+    leaves unset (:attr:`AgentInfo.data_settings`); ``return_dim`` K > 0: a DT with a return token per cost metric
+    (a vector method, :mod:`minsubdt_jax.methods`)."""
+    from ..envs import env_spec  # the env's own name (aliases: walker2d)
+
+    own = AGENTS[name].settings_for(env_spec(cfg.env).name, cfg.datasets[0] if len(cfg.datasets) == 1 else "*")
+    unset = {k: v for k, v in own.items() if getattr(cfg, k) is None}
+    cfg = dataclasses.replace(cfg, **unset) if unset and dataclasses.is_dataclass(cfg) else cfg
     if return_dim:
         return AGENTS[name].make(cfg, obs_dim, act_dim, max_timestep, return_dim=return_dim)
     return AGENTS[name].make(cfg, obs_dim, act_dim, max_timestep)

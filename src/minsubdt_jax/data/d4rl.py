@@ -163,7 +163,7 @@ def file_dynamics(f: DatasetFile, env: str, dynamics: str | None = None) -> tupl
     if report["best"] == NEITHER:
         raise DatasetError(f"{f.path}: no dynamics reproduces its recorded transitions (" + ", ".join(
             f"{k} {100 * r['reproduced']:.0f} %" for k, r in report["dynamics"].items()) + "): it was not recorded in "
-            f"one of ours; pass --dynamics brax or d4rl to evaluate in one anyway")
+            "one of ours; pass --dynamics brax, d4rl or v5 to evaluate in one anyway")
     return report["best"], {"how": "checked: replayed from infos/qpos, infos/qvel", **report}
 
 

@@ -18,9 +18,9 @@ import numpy as np
 
 from .c_backend import Sims
 from .rules import forward_position, mj_model, observe, reset_state, step_outcome
-from .spec import ENVS, env_spec
+from .spec import ENVS, ON_REGISTER, env_spec
 
-IDS = {(env, dyn): f"minsubdt/{env.capitalize()}-{dyn}-v0" for env, spec in ENVS.items() for dyn in spec.dynamics}
+IDS: dict = {}  # (env, dynamics) -> gymnasium id, for every env known (register_gym_envs)
 
 
 class MinSubDTEnv(gym.Env):
@@ -59,7 +59,16 @@ class MinSubDTEnv(gym.Env):
         return self._obs(), float(reward[0]), bool(done[0]), False, {}
 
 
-for (_env, _dyn), _id in IDS.items():
-    if _id not in gym.registry:
-        gym.register(_id, entry_point="minsubdt_jax.envs.gym_env:MinSubDTEnv", kwargs={"env": _env, "dynamics": _dyn},
-                     max_episode_steps=1000)
+def register_gym_envs() -> None:
+    """Every env of :data:`~minsubdt_jax.envs.spec.ENVS` in each of its dynamics as a gymnasium id
+    (``minsubdt/<Env>-<dynamics>-v0``): at import, and again for an env registered later (``envs.register_env``)."""
+    for env, spec in ENVS.items():
+        for dyn in spec.dynamics:
+            IDS[(env, dyn)] = gym_id = f"minsubdt/{env.capitalize()}-{dyn}-v0"
+            if gym_id not in gym.registry:
+                gym.register(gym_id, entry_point="minsubdt_jax.envs.gym_env:MinSubDTEnv",
+                             kwargs={"env": env, "dynamics": dyn}, max_episode_steps=1000)
+
+
+register_gym_envs()
+ON_REGISTER.append(register_gym_envs)

@@ -60,26 +60,30 @@ def planar_dynamics(brax_xml: str, gym_xml: str, v5_xml: str | None = None, tors
 class EnvSpec:
     """Everything about one environment, in one record (a new env is one record: :func:`register_env`).
 
-    ``x_velocity_index`` / ``z_velocity_index`` index the observation vector (gym/D4RL layout: ``qpos[1:]``
-    then ``qvel``), so cost metrics can be read from any D4RL-layout dataset as well as from our rollouts.
+    The observation layout the cost metrics read (gym/D4RL layout: ``qpos[obs_skip:]`` then ``qvel``), so they can
+    be read from any D4RL-layout dataset as well as from our rollouts: ``x_velocity_index`` (forward speed),
+    ``z_velocity_index`` (the torso's vertical speed), ``pitch_index`` (its pitch angle) and ``joint_velocity_start``
+    (the leg joints' angular velocities, from there to the end); None where the body has none (a metric that needs
+    it is then one error).
     ``reset_obs0`` is ``obs[0]`` in a reset state (torso height for hopper and walker, the root's z offset for
     halfcheetah), in brax MJX and in gym alike: it tells apart datasets of envs with the same shapes.
 
     The rest is what other layers tune per env: ``terminates`` (episodes end when the body falls), the cost
     metrics' ranges (``speed_hi``: the forward speed of cost 0, m/s; ``joint_speed_hi``, rad/s; ``speed_band`` and
-    its saturation ``speed_band_sat``, m/s), D4RL's medium-replay size (``replay_transitions``), BEAR's MMD kernel
-    (``bear_kernel``: its reference's choice per env), its rules and model per dynamics (``dynamics``:
+    its saturation ``speed_band_sat``, m/s), D4RL's medium-replay size (``replay_transitions``), its rules and model
+    per dynamics (``dynamics``:
     :class:`Dynamics`) and the reference returns of a normalised score per dynamics (``references``: ``(random,
     expert, where they come from)``; D4RL's are d4rl/infos.py's; without an entry for ``brax``, the ones measured with the committed
     behaviour policies, ``behavior/snapshots/{env}/manifest.json``).
     """
 
     name: str
-    brax_name: str
     obs_dim: int
     act_dim: int
     x_velocity_index: int
     z_velocity_index: int | None
+    pitch_index: int | None
+    joint_velocity_start: int | None
     reset_obs0: float
     terminates: bool
     speed_hi: float
@@ -87,7 +91,6 @@ class EnvSpec:
     speed_band: tuple[float, float]
     speed_band_sat: float
     replay_transitions: int
-    bear_kernel: str
     dynamics: dict = field(default_factory=dict, hash=False)
     references: dict = field(default_factory=dict, hash=False)
 
@@ -97,25 +100,30 @@ _HOPPER_WALKER = dict(frame_skip=4, ctrl_cost=1e-3, reset_noise=5e-3, clip_qvel=
 # reset_obs0 measured as the mean obs[0] of 64 brax MJX resets: 1.25 ± 0.003 (hopper, walker), 0.00 ± 0.06
 # (halfcheetah); gym's resets (D4RL) have the same values. Rules: brax 0.14.2's envs/*.py and gym's v3 classes.
 ENVS = {
-    "hopper": EnvSpec("hopper", "hopper", 11, 3, 5, 6, 1.25, terminates=True, speed_hi=4.0, joint_speed_hi=10.0,
-                      speed_band=(2.0, 3.0), speed_band_sat=2.0, replay_transitions=402_000, bear_kernel="laplacian",
+    # hopper's observation: z, pitch, 3 joints, then v_x, v_z, pitch rate, 3 joint speeds
+    "hopper": EnvSpec("hopper", 11, 3, x_velocity_index=5, z_velocity_index=6, pitch_index=1, joint_velocity_start=8,
+                      reset_obs0=1.25, terminates=True, speed_hi=4.0, joint_speed_hi=10.0,
+                      speed_band=(2.0, 3.0), speed_band_sat=2.0, replay_transitions=402_000,
                       dynamics=planar_dynamics("hopper.xml", "hopper.xml", torso_height=True,
                                              z_range=(0.7, float("inf")), angle_range=(-0.2, 0.2),
                                              state_range=(-100.0, 100.0), **_HOPPER_WALKER),
                       references={"d4rl": (-20.272305, 3234.3, _D4RL_REFS)}),
-    "walker": EnvSpec("walker", "walker2d", 17, 6, 8, 9, 1.25, terminates=True, speed_hi=6.0, joint_speed_hi=10.0,
-                      speed_band=(2.5, 3.5), speed_band_sat=2.0, replay_transitions=302_000, bear_kernel="laplacian",
+    # walker's and halfcheetah's: z, pitch, 6 joints, then v_x, v_z, pitch rate, 6 joint speeds
+    "walker": EnvSpec("walker", 17, 6, x_velocity_index=8, z_velocity_index=9, pitch_index=1, joint_velocity_start=11,
+                      reset_obs0=1.25, terminates=True, speed_hi=6.0, joint_speed_hi=10.0,
+                      speed_band=(2.5, 3.5), speed_band_sat=2.0, replay_transitions=302_000,
                       dynamics=planar_dynamics("walker2d.xml", "walker2d.xml", "walker2d_v5.xml", torso_height=True,
                                              z_range=(0.8, 2.0), angle_range=(-1.0, 1.0), **_HOPPER_WALKER),
                       references={"d4rl": (1.629008, 4592.3, _D4RL_REFS)}),
-    "halfcheetah": EnvSpec("halfcheetah", "halfcheetah", 17, 6, 8, None, 0.0, terminates=False, speed_hi=15.0,
+    "halfcheetah": EnvSpec("halfcheetah", 17, 6, x_velocity_index=8, z_velocity_index=9, pitch_index=1,
+                           joint_velocity_start=11, reset_obs0=0.0, terminates=False, speed_hi=15.0,
                            joint_speed_hi=30.0, speed_band=(4.0, 6.0), speed_band_sat=5.0, replay_transitions=202_000,
-                           bear_kernel="gaussian",
                            dynamics=planar_dynamics("half_cheetah.xml", "half_cheetah.xml", frame_skip=5,
                                                     ctrl_cost=0.1, reset_noise=0.1, qvel_noise_normal=True),
                            references={"d4rl": (-280.178953, 12135.0, _D4RL_REFS)}),
 }
 _ALIASES = {"walker2d": "walker", "half_cheetah": "halfcheetah", "cheetah": "halfcheetah"}
+ON_REGISTER: list = []  # called with each env registered later: the gymnasium ids (envs.gym_env), once imported
 
 
 def register_env(spec: EnvSpec) -> EnvSpec:
@@ -127,6 +135,8 @@ def register_env(spec: EnvSpec) -> EnvSpec:
     if not spec.dynamics:
         raise ValueError(f"env {spec.name!r} names no dynamics (EnvSpec.dynamics: {{name: Dynamics}})")
     ENVS[spec.name] = spec
+    for hook in ON_REGISTER:
+        hook()
     return spec
 
 

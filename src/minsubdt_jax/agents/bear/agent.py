@@ -17,7 +17,6 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ...envs.spec import env_spec
 from ..actor_critic import CriticAgentBase, critic_fields
 from ..base import PolicyInputs
 from ...networks import Critics
@@ -87,4 +86,4 @@ def best_of_q_policy(actor, critic, n: int):
 def make_bear_agent(cfg, obs_dim: int, act_dim: int, max_timestep: int) -> BEARAgent:
     warmup = cfg.steps // 25 if cfg.pretrain_steps is None else cfg.pretrain_steps
     return BEARAgent(**critic_fields(cfg, obs_dim, act_dim, layers=2, actor_lr=1e-4),
-                     kernel=env_spec(cfg.env).bear_kernel, warmup=warmup)
+                     kernel=cfg.bear_kernel or "laplacian", warmup=warmup)
