@@ -44,12 +44,12 @@ def test_mjx_env_steps_as_brax_own_env():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("env, dynamics", [("hopper", "brax"), ("walker", "brax"), ("hopper", "d4rl"),
-                                           ("hopper", "v5"), ("walker", "v5")])
+@pytest.mark.parametrize("env, dynamics", [("hopper", "brax"), ("walker", "brax"), ("hopper", "d4rl"), ("walker", "v5")])
 def test_c_mujoco_and_mjx_roll_out_the_same_episodes(env, dynamics):
     """Same model, same resets, same actions (the backends draw both from the same keys): 200 steps of random
     actions end at the same steps, with returns within 1e-3 relative and identical reset observations. The d4rl
-    case is MJX on gym's XML (RK4, 100 solver iterations): the path a D4RL file takes on an accelerator."""
+    case is MJX on gym's XML (RK4, 100 solver iterations): the path a D4RL file takes on an accelerator; walker's v5
+    case, on v5's own XML, Minari's (hopper's v5 is d4rl's model: its terminal reward is the same code on both)."""
     mjx, c = _random_rollout(env, "mjx", dynamics), _random_rollout(env, "mujoco", dynamics)
     np.testing.assert_array_equal(c.lengths, mjx.lengths)
     np.testing.assert_array_equal(c.terminated, mjx.terminated)
