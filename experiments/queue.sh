@@ -6,6 +6,7 @@
 #   bash experiments/queue.sh curves   # issue 72: the surrogate reward under IQL and TD3+BC, at the last step or
 #                                      # spread over the episode (minsubdt-iql vs minsubdt-iql-spread, ...)
 #   bash experiments/queue.sh peers    # issue 72: d3rlpy's critic agents on our files (experiments/peer_critics.py)
+#   bash experiments/queue.sh v5       # issue 73: hopper medium recorded in gymnasium's v5 (experiments/v5_cell.py)
 #   bash experiments/queue.sh front    # issue 55: the fronts' remaining cells
 #   bash experiments/queue.sh status   # what each lane has left, from the committed result files, and the runs
 #                                      # under way that this machine's checkpoints resume
@@ -87,6 +88,14 @@ peers() {
         experiments/results/peer_critics experiments/results/peer_critics.md
 }
 
+v5() {
+    wait_for "experiments/v5_cell.py run"
+    log "v5 cell"
+    python experiments/v5_cell.py run || { log "v5 cell rc=$?"; return 1; }
+    commit "v5 cell (issue 73): hopper medium in gymnasium's v5 physics, MinSubDT and DT at study; resume: bash \
+experiments/queue.sh v5" experiments/results/v5_cell.json experiments/results/v5_cell.md
+}
+
 front() {
     wait_for "experiments/front.py run"
     # issue 55 yields to issue 54's lanes: under setsid each lane is its own scheduler autogroup, in which
@@ -128,6 +137,11 @@ for name in curves:
     f = f"{R}/curves/{name}.json"
     state = "missing" if not os.path.exists(f) else "partial" if json.load(open(f)).get("partial") else "done"
     print(f"curve {name}: {state}")
+print(f"v5 cell: {'done' if os.path.exists(f'{R}/v5_cell.json') else 'missing'}")
+peers = sorted(glob.glob(f"{R}/peer_critics/*-*.json"))
+for f in (p for p in peers if not os.path.basename(p).startswith("time-")):
+    r = json.load(open(f))
+    print(f"peer {os.path.basename(f)[:-5]}: d3rlpy seeds {sorted(r['peer'])}, ours {'done' if 'ours' in r else 'missing'}")
 for cell in fronts:
     f = f"{R}/front/{cell}.json"
     r = json.load(open(f)) if os.path.exists(f) else {}
@@ -143,8 +157,8 @@ PY
 
 {  # parsed whole before it runs, and exits: an edit of this file does not reach a lane that is running
     case "${1:-}" in
-        table | curves | peers | front | status) "$1" ;;
-        *) echo "usage: bash experiments/queue.sh table|curves|peers|front|status" >&2; exit 2 ;;
+        table | curves | peers | v5 | front | status) "$1" ;;
+        *) echo "usage: bash experiments/queue.sh table|curves|peers|v5|front|status" >&2; exit 2 ;;
     esac
     exit
 }
