@@ -224,6 +224,10 @@ def run(a) -> dict:
             continue  # resumable: a finished seed is kept
         out["peer"][str(seed)] = train_d3rlpy(a, cfg, ours, buffer, seed)
         save(out, path)
+        if a.commit:  # a seed of the peer's is hours on this CPU: it lands as it finishes
+            from gitcommit import commit_results
+            commit_results([path], f"Peer critics (issue 72): d3rlpy {a.agent} {a.env} {a.dataset} seed {seed}; resume: "
+                                   f"bash experiments/queue.sh peers")
         print(json.dumps({"seed": seed, **{k: v for k, v in out["peer"][str(seed)].items() if k != "curve"}}),
               flush=True)
     out["ours"] = train_ours(a, cfg)
@@ -273,6 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-every", type=int, default=0, help="a score point every this many steps, both sides")
     p.add_argument("--eval-episodes", type=int, default=30, help="episodes per score point")
     p.add_argument("--threads", type=int, default=1, help="torch threads (1: a lane beside another)")
+    p.add_argument("--commit", action="store_true", help="git commit the result file after each d3rlpy seed")
     p.add_argument("--time-steps", type=int, default=500, help="steps timed by 'time'")
     p.add_argument("--ours-out", default=None, help="our run's directory (default runs/peer-critics/<name>)")
     return p

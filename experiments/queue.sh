@@ -74,7 +74,7 @@ peers() {
     for cell in "${PEER_CELLS[@]}"; do
         set -- $cell
         log "peer $*"
-        .venv-peer/bin/python experiments/peer_critics.py run --agent "$1" --env "$2" --dataset "$3" "${@:4}" \
+        .venv-peer/bin/python experiments/peer_critics.py run --agent "$1" --env "$2" --dataset "$3" "${@:4}" --commit \
             || { log "peer $* rc=$?"; return 1; }
         python experiments/peer_critics.py report > /dev/null
         commit "Peer critics (issue 72): $*; resume: bash experiments/queue.sh peers" \
