@@ -69,6 +69,13 @@ def record_rows(env: str, episodes: int | None, policy: str = "random", horizon:
     return rows
 
 
+def rows_of_file(path: str) -> dict:
+    """The flat rows of a file :func:`record` wrote (a recording made once, exported to Minari again)."""
+    with h5py.File(path, "r") as f:
+        return {k: f[k][()] for k in ("observations", "actions", "rewards", "terminals", "timeouts",
+                                      "next_observations")}
+
+
 def returns_of(rows: dict) -> np.ndarray:
     ends = np.asarray(rows["terminals"]) | np.asarray(rows["timeouts"])
     return np.add.reduceat(np.asarray(rows["rewards"]), np.flatnonzero(np.r_[True, ends[:-1]]))
@@ -97,14 +104,14 @@ def to_minari(rows: dict, env: str, version: str, dataset_id: str, horizon: int,
 
     from minsubdt_jax.envs import env_spec
 
-    ends = np.flatnonzero(np.asarray(rows["terminals"]) | np.asarray(rows["timeouts"]))
+    col = {k: np.asarray(v) for k, v in rows.items()}  # once: a list of 1M rows is slow to convert
+    ends = np.flatnonzero(col["terminals"] | col["timeouts"])
     starts = np.r_[0, ends[:-1] + 1]
-    col = lambda k: np.asarray(rows[k])  # noqa: E731
-    buffers = [EpisodeBuffer(id=i, observations=np.concatenate([col("observations")[s:t + 1],
-                                                                 col("next_observations")[t:t + 1]]),
-                             actions=col("actions")[s:t + 1], rewards=col("rewards")[s:t + 1].tolist(),
-                             terminations=col("terminals")[s:t + 1].tolist(),
-                             truncations=col("timeouts")[s:t + 1].tolist())
+    buffers = [EpisodeBuffer(id=i, observations=np.concatenate([col["observations"][s:t + 1],
+                                                                 col["next_observations"][t:t + 1]]),
+                             actions=col["actions"][s:t + 1], rewards=col["rewards"][s:t + 1].tolist(),
+                             terminations=col["terminals"][s:t + 1].tolist(),
+                             truncations=col["timeouts"][s:t + 1].tolist())
                for i, (s, t) in enumerate(zip(starts, ends))]
     gym_id = GYM_IDS[env_spec(env).name].format(version)
     refs = {p: float(returns_of(record_rows(env, ref_episodes, p, horizon, seed + 1, version)).mean())
@@ -130,9 +137,13 @@ def main():
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     a = p.parse_args()
-    out = record(a.env, None if a.transitions else a.episodes, a.out, a.policy, a.horizon, a.seed, a.version,
-                 a.transitions)
-    rows = out.pop("rows")
+    if a.minari and os.path.exists(a.out):  # recorded already: export it
+        rows = rows_of_file(a.out)
+        out = {"episodes": len(returns_of(rows)), "transitions": len(rows["rewards"]), "from": a.out}
+    else:
+        out = record(a.env, None if a.transitions else a.episodes, a.out, a.policy, a.horizon, a.seed, a.version,
+                     a.transitions)
+        rows = out.pop("rows")
     if a.minari:
         out["references"] = to_minari(rows, a.env, a.version, a.minari, a.horizon, a.ref_episodes, a.seed)
     print(out, "->", a.out)
