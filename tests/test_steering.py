@@ -182,3 +182,29 @@ def test_load_policy_says_what_it_expected(vec_run):
     with pytest.raises(ValueError, match=r"^target: 'energy' is not a metric"):
         load_policy(vec_run, target={"energy": 0.5})
     assert policy(np.zeros(11)).shape == (3,)
+
+
+def test_loading_a_run_checks_it_as_a_resume_does(vec_run, tmp_path, capsys):
+    """``evaluate`` reads a run back on the path a resumed training takes (the same checks of its data and cost
+    metrics, the same checkpoint manager): a folder without a checkpoint, other cost metrics, or data that changed
+    since are one error line each, naming the run, and nothing is written."""
+    import shutil
+
+    from minsubdt_jax.evaluate import load_policy, main
+
+    assert main([str(tmp_path), "--episodes", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {tmp_path}: not a run directory") and err.count("\n") == 1, err
+    with pytest.raises(ValueError, match="trained on the cost metrics x_velocity, energy@lived.*not on x_velocity, fall"):
+        load_policy(vec_run, metrics=["x_velocity", "fall"])
+    other = tmp_path / "run"
+    shutil.copytree(vec_run, other)
+    with open(other / "dataset.json") as f:
+        ds = json.load(f)
+    with open(other / "dataset.json", "w") as f:
+        json.dump(dict(ds, sha256="0" * 64), f)
+    before = sorted(os.listdir(other))
+    assert main([str(other), "--episodes", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "the dataset differs from the one the run started on (sha256 000000000000" in err and err.count("\n") == 1
+    assert sorted(os.listdir(other)) == before

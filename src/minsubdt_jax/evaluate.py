@@ -30,7 +30,6 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
-import orbax.checkpoint as ocp
 
 from .agents import batch_size_of
 from .agents.base import PolicyInputs, eval_params, init_seed_states, optimizer_for
@@ -43,8 +42,9 @@ from .methods import get_method
 from .parallel import available_bytes, make_mesh
 from .pipeline import load
 from .program import evaluate_models, program_models
-from .rundir import DATASET_FILE, COST_METRICS_FILE, exit_code, json_text, write_atomic
-from .runsetup import prepare_each, program_agent
+from .rundir import (COST_METRICS_FILE, DATASET_FILE, check_same_data, check_same_metrics, exit_code, json_text,
+                     write_atomic)
+from .runsetup import prepare_each, program_agent, restore_latest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,26 +75,18 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
     with open(paths[DATASET_FILE]) as f:
         recorded = json.load(f)
     chosen = cost_metrics(cfg.env, cfg.costs if metrics is None else metrics)
-    with open(paths[COST_METRICS_FILE]) as f:
-        if json.load(f) != [m.record() for m in chosen]:
-            raise ValueError(f"{run_dir}: the run trained on other cost metrics ({COST_METRICS_FILE}); give the metrics of "
-                             f"one's own again: load_policy(run_dir, metrics=[...])")
+    check_same_metrics(run_dir, [m.record() for m in chosen], True, what=run_dir)  # as a resume checks them
     source = load(cfg, verbose=False, physics=recorded.get("recorded_physics"))
-    if source.sha256 != recorded["sha256"]:
-        raise ValueError(f"{run_dir}: its dataset {source.path} has changed since the run (sha256 "
-                         f"{source.sha256[:12]}, the run's {recorded['sha256'][:12]})")
+    check_same_data(run_dir, source.sha256, True, what=run_dir)
     methods = [get_method(m) for m in cfg.methods]
     models = program_models(methods, list(range(cfg.seed, cfg.seed + cfg.seeds)), cfg.datasets)
     _, per_model = prepare_each(cfg, models, [source], recorded["dynamics"], metrics, verbose=False)
     agent = program_agent(cfg, methods, [source], len(chosen))
     template = init_seed_states(agent, optimizer_for(agent, cfg), [mo.seed for mo in models], ema=cfg.ema_decay > 0)
-    mngr = ocp.CheckpointManager(os.path.abspath(paths["checkpoints"]),
-                                 options=ocp.CheckpointManagerOptions(create=False))
-    step = mngr.latest_step()
-    if step is None:
+    state, mngr = restore_latest(run_dir, template)  # training's own restore
+    if mngr.latest_step() is None:
         raise ValueError(f"{run_dir}: no checkpoint has been written yet")
-    state = mngr.restore(step, args=ocp.args.StandardRestore(template))
-    return LoadedRun(cfg, agent, models, eval_params(state), per_model, recorded["dynamics"], int(step))
+    return LoadedRun(cfg, agent, models, eval_params(state), per_model, recorded["dynamics"], int(mngr.latest_step()))
 
 
 def parse_target(text, method, prep, beta: float, flag: str = "--target"):

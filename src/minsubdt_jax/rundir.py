@@ -46,18 +46,19 @@ def check_run_dir(config: dict, out: str, ckpt_dir: str, resume: bool, resumable
         raise ValueError(f"{out} already holds checkpoints: pass --resume to continue, or another --out")
 
 
-def check_same_data(out: str, sha256: str, resume: bool) -> None:
-    """On resume, the data must be the data the run started on (its content hash in ``dataset.json``)."""
+def check_same_data(out: str, sha256: str, resume: bool, what: str = "--resume") -> None:
+    """On resume (or a run read back, ``what`` its name in the message), the data must be the data the run started
+    on (its content hash in ``dataset.json``)."""
     if not resume:
         return
     path = os.path.join(out, DATASET_FILE)
     if not os.path.exists(path):
-        raise ValueError(f"--resume: {out} records no dataset hash ({DATASET_FILE}; written by an older version), "
-                         f"so resuming on the same data cannot be checked: start a new run")
+        raise ValueError(f"{what}: {out} records no dataset hash ({DATASET_FILE}; written by an older version), "
+                         f"so the same data cannot be checked: start a new run")
     with open(path) as f:
         old = json.load(f)["sha256"]
     if old != sha256:
-        raise ValueError(f"--resume: the dataset differs from the one the run started on (sha256 {old[:12]}…, now "
+        raise ValueError(f"{what}: the dataset differs from the one the run started on (sha256 {old[:12]}…, now "
                          f"{sha256[:12]}…)")
 
 
@@ -65,9 +66,10 @@ def check_same_data(out: str, sha256: str, resume: bool) -> None:
 COST_METRICS_FILE = "cost_metrics.json"
 
 
-def check_same_metrics(out: str, records: list[dict], resume: bool) -> None:
-    """On resume, the cost metrics (their ``CostMetric.record()``) must be those the run started on: a run trained
-    through the library on a metric of one's own, resumed from the CLI, would go on with the defaults."""
+def check_same_metrics(out: str, records: list[dict], resume: bool, what: str = "--resume") -> None:
+    """On resume (or a run read back, ``what`` its name in the message), the cost metrics (their
+    ``CostMetric.record()``) must be those the run started on: a run trained through the library on a metric of
+    one's own, resumed from the CLI, would go on with the defaults."""
     path = os.path.join(out, COST_METRICS_FILE)
     if not resume or not os.path.exists(path):  # a run of an older version records none
         return
@@ -75,7 +77,7 @@ def check_same_metrics(out: str, records: list[dict], resume: bool) -> None:
         saved = json.load(f)
     if saved != records:
         names = lambda rs: ", ".join(r["name"] for r in rs)  # noqa: E731
-        raise ValueError(f"--resume: the run trained on the cost metrics {names(saved)} ({COST_METRICS_FILE}), not on "
+        raise ValueError(f"{what}: the run trained on the cost metrics {names(saved)} ({COST_METRICS_FILE}), not on "
                          f"{names(records)}; a metric of one's own is given again with train(..., metrics=[...]), "
                          f"which the command line cannot do")
 

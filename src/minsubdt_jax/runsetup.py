@@ -156,6 +156,16 @@ def prepare_models(run: RunPlan, metrics) -> ModelData:
     return ModelData(preps, per_model, data, data_axis)
 
 
+def restore_latest(out: str, state, restore: bool = True):
+    """``(state, mngr)``: the run's checkpoint manager and, with ``restore``, ``state`` (the template of the models'
+    stacked states) restored from its last checkpoint where it has one (training's resume, and a run read back by
+    :mod:`minsubdt_jax.evaluate`)."""
+    mngr = checkpoint_manager(_ckpt_dir(out), keep=2)
+    if restore and mngr.latest_step() is not None:
+        state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
+    return state, mngr
+
+
 def prepare_each(cfg: Config, models: list, sources: list, dynamics: str, metrics, verbose: bool):
     """``(preps, per_model)``: the prepared data of each model of ``models`` on ``sources`` (one per entry of
     ``cfg.datasets``), one :class:`~minsubdt_jax.pipeline.Prepared` per dataset and method, and per seed where the
@@ -203,9 +213,7 @@ def start_run(run: RunPlan, lock: RunLock) -> Started:
     agent = program_agent(cfg, run.methods, run.sources, len(run.metric_records))
     tx = optimizer_for(agent, cfg)
     state = init_seed_states(agent, tx, [mo.seed for mo in run.models], ema=cfg.ema_decay > 0)
-    mngr = checkpoint_manager(_ckpt_dir(out), keep=2)
-    if run.resume and mngr.latest_step() is not None:
-        state = mngr.restore(mngr.latest_step(), args=ocp.args.StandardRestore(state))
+    state, mngr = restore_latest(out, state, run.resume)
     start = int(np.asarray(state.step)[0])
     if run.verbose and run.resume:
         print(f"resumed from step {start}", flush=True)
