@@ -12,9 +12,9 @@ episodes ran in (:mod:`minsubdt_jax.envs.rules`):
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass
+
+import numpy as np
 
 from .behavior.snapshots import load_manifest
 from .envs import env_spec
@@ -53,13 +53,7 @@ def reference_source(env: str, dynamics: str = "brax") -> str:
 
 def normalized_score(env: str, returns, dynamics: str = "brax"):
     """``100 (R - R_random) / (R_expert - R_random)`` with the references of ``dynamics`` (:func:`reference_returns`)."""
-    lo, hi = reference_returns(env, dynamics)
-    return 100.0 * (np.asarray(returns, np.float64) - lo) / (hi - lo)
-
-
-def references_record(env: str, dynamics: str = "brax") -> dict:
-    """What ``results.json`` says about the references a score used."""
-    return references_for(env, dynamics).record()
+    return references_for(env, dynamics).normalize(returns)
 
 
 @dataclass(frozen=True)
