@@ -25,7 +25,7 @@ import numpy as np
 from .costs import CostMetric, cost_metrics, trajectory_costs
 from .envs import make_seed_rollout
 from .parallel import gather
-from .references import normalized_score
+from .references import references_for
 from .subdominance import min_subdominance
 
 
@@ -102,29 +102,26 @@ def score_episodes(env: str, observations, lengths, rewards, *, terminated, hori
     as ``scoring`` says (:class:`Scoring`); the cost features are read from the observations and
     ``actions [n, T, act]``."""
     sc = scoring
-    demo_costs, beta, alpha_max, learned, demo_features = (sc.demo_costs, sc.beta, sc.alpha_max, sc.learned,
-                                                           sc.demo_features)
-    metrics, extra_metrics, dynamics, references = sc.metrics, sc.extra_metrics, sc.dynamics, sc.references
     lengths = np.asarray(lengths)
     valid = np.arange(np.shape(rewards)[1])[None, :] < lengths[:, None]
     returns = np.where(valid, np.asarray(rewards), 0.0).sum(1)
-    metrics = cost_metrics(env) if metrics is None else tuple(metrics)
+    metrics = cost_metrics(env) if sc.metrics is None else tuple(sc.metrics)
     k = len(metrics)
-    extra = tuple(m for m in extra_metrics if m.name not in {n.name for n in metrics})
+    extra = tuple(m for m in sc.extra_metrics if m.name not in {n.name for n in metrics})
     costs = np.asarray(trajectory_costs(metrics + extra, observations, lengths, horizon, terminated=terminated,
                                         actions=actions))
-    normalized = normalized_score(env, returns, dynamics) if references is None else references.normalize(returns)
-    ev = EvalResult(returns=returns, lengths=lengths, normalized=normalized, costs=costs,
+    refs = sc.references or references_for(env, sc.dynamics)
+    ev = EvalResult(returns=returns, lengths=lengths, normalized=refs.normalize(returns), costs=costs,
                     cost_names=tuple(m.name for m in metrics + extra))
-    if demo_costs is not None:
-        demo_costs, own = np.asarray(demo_costs), costs[:, :k]
-        ev.min_subdominance = np.asarray(min_subdominance(own, demo_costs, beta, alpha_max=alpha_max).value)
+    if sc.demo_costs is not None:
+        demo_costs, own = np.asarray(sc.demo_costs), costs[:, :k]
+        ev.min_subdominance = np.asarray(min_subdominance(own, demo_costs, sc.beta, alpha_max=sc.alpha_max).value)
         mean = demo_costs.mean(0)  # dominates the mean demo: no worse on any feature, better on one
         ev.beats_mean_demo = np.all(own <= mean, axis=1) & np.any(own < mean, axis=1)
-    if learned is not None:
-        feats = learned.features(observations, lengths, terminated)
+    if sc.learned is not None:
+        feats = sc.learned.features(observations, lengths, terminated)
         ev.learned_min_subdominance = np.asarray(
-            min_subdominance(feats, np.asarray(demo_features), beta, alpha_max=alpha_max).value)
+            min_subdominance(feats, np.asarray(sc.demo_features), sc.beta, alpha_max=sc.alpha_max).value)
     return ev
 
 

@@ -12,7 +12,7 @@ from .costs import CostMetric, cost_metrics, spearman, trajectory_costs
 from .data import DatasetFile, SamplerData, resolve_dataset, sampler_data
 from .learned_costs import LearnedCostConfig, LearnedCosts, train_learned_costs
 from .methods import Method
-from .references import references_for
+from .references import References, references_for
 from .subdominance import min_subdominance, returns_to_go
 
 
@@ -31,7 +31,9 @@ class Prepared:
       state_mean, state_std: ``[obs]`` state normalisation.
       rtg_scale, target_return: the return tokens' divisor and the evaluation target (unscaled; ``[K]`` for a
         vector method, :mod:`minsubdt_jax.methods`).
-      dynamics: the env rules the data is scored and evaluated in (its normalisation references).
+      dynamics: the env rules the data is scored and evaluated in.
+      references: the normalisation its scores use: the dataset's own where it brings them, else the dynamics'
+        (:func:`~minsubdt_jax.references.references_for`).
     """
 
     source: DatasetFile
@@ -46,6 +48,7 @@ class Prepared:
     target_return: float | np.ndarray
     dynamics: str = "brax"
     metrics: tuple[CostMetric, ...] = ()
+    references: References | None = None
 
     def summary(self, env: str) -> dict:
         """The dataset block of ``results.json``."""
@@ -55,8 +58,7 @@ class Prepared:
             "dropped_transitions": self.source.dropped_transitions,
             "episodes": data.num_trajectories, "transitions": data.num_transitions,
             "return_mean": float(data.returns.mean()), "return_std": float(data.returns.std()),
-            "normalized_score_mean": float(references_for(env, self.dynamics, self.source.references)
-                                           .normalize(data.returns).mean()),
+            "normalized_score_mean": float(self.references.normalize(data.returns).mean()),
             "costs_mean": dict(zip((m.name for m in self.metrics), map(float, self.costs.mean(0)))),
             "cost_metrics": [m.record() for m in self.metrics],
             "min_subdominance_mean": float(ms.mean()), "min_subdominance_std": float(ms.std()),
@@ -129,7 +131,8 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
                                          / rtg_scale,
                                          np.ones_like(dataset.terminals) if method.episodic else dataset.terminals),
                     state_mean=mean, state_std=std, rtg_scale=rtg_scale,
-                    target_return=target, dynamics=dynamics, metrics=metrics)
+                    target_return=target, dynamics=dynamics, metrics=metrics,
+                    references=references_for(cfg.env, dynamics, source.references))
     if verbose:
         _report(prep, cfg)
     return prep

@@ -22,7 +22,6 @@ from .evaluation import Scoring, evaluate_policy
 from .methods import Method
 from .parallel import available_bytes, replicate
 from .pipeline import Prepared
-from .references import references_for
 
 
 @dataclass(frozen=True)
@@ -120,7 +119,7 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
     scoring = Scoring(demo_costs=per_model[0].costs, beta=cfg.beta, alpha_max=cfg.alpha_max, learned=learned,
                       demo_features=[p.features for p in per_model] if learned else None, metrics=per_model[0].metrics,
                       extra_metrics=cost_metrics(cfg.env, cfg.eval_costs) if cfg.eval_costs else (), dynamics=dynamics,
-                      references=references_for(cfg.env, dynamics, per_model[0].source.references))
+                      references=per_model[0].references)
     evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
                           seeds=[mo.seed + 10_000 for mo in models], scoring=scoring, mesh=mesh, physics=physics,
                           threads=cfg.physics_threads)

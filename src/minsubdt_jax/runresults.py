@@ -11,10 +11,10 @@ import jax
 
 from .agents.base import eval_params
 from .agents.dt.networks import DT_REVISION
+from .config import PRESETS
 from .envs import physics_record
 from .evaluation import across_seeds
 from .program import eval_record, evaluate_models
-from .references import references_for
 from .plot import plot_learning_curve
 from .rundir import json_text, write_atomic
 from .runsetup import ModelData, RunPlan, Started, Trained
@@ -46,7 +46,7 @@ def finish_run(run: RunPlan, started: Started, trained: Trained, models: ModelDa
     summaries = {id(p): p.summary(cfg.env) for p in preps.values()}  # once per prepared data, not per model
     own = [summaries[id(p)] for p in per_model]
     results = {"config": dataclasses.asdict(cfg), "dataset": own[0],
-               "references": references_for(cfg.env, run.dynamics, run.sources[0].references).record(),
+               "references": per_model[0].references.record(),
                "physics": {**physics_record(run.physics, run.dynamics, cfg.physics_threads),
                            "dynamics_from": run.dynamics_how},
                "platform": platform(), "seeds": list(range(cfg.seed, cfg.seed + cfg.seeds)),
@@ -66,8 +66,10 @@ def finish_run(run: RunPlan, started: Started, trained: Trained, models: ModelDa
     if run.verbose:
         print(f"wrote {run.out}/results.json", flush=True)
         if cfg.preset == "quick":
+            study = PRESETS["study"]
             print(f"This was a quick run (the default preset, quick: {cfg.steps} steps, {cfg.eval_episodes} evaluation "
-                  f"episodes). Table 1's setting is --preset study (10k steps, 100 episodes; critic agents their own), "
+                  f"episodes). Table 1's setting is --preset study ({study.steps // 1000}k steps, "
+                  f"{study.eval_episodes} episodes; critic agents their own), "
                   f"e.g. python -m minsubdt_jax.train --env {cfg.env} --dataset {cfg.dataset} --method {cfg.method} "
                   f"--preset study --seeds 3", flush=True)
     return results
@@ -97,7 +99,7 @@ def _final_eval(run: RunPlan, agent, state, step: int, per_model, own: list, res
                 else f"{cfg.seeds} seeds x {cfg.eval_episodes} episodes")
         print(f"eval {name}: return {e['return_mean']:.1f} ± {e['return_std']:.1f}, normalised "
               f"{e['normalized_score_mean']:.1f} ± {e['normalized_score_std']:.1f} over {over} "
-              f"({references_for(cfg.env, run.dynamics, run.sources[0].references).source}), min-subdominance {e['min_subdominance_mean']:.3f} "
+              f"({per_model[by_method[name][0]].references.source}), min-subdominance {e['min_subdominance_mean']:.3f} "
               f"(dataset {demo['min_subdominance_mean']:.3f})")
         demo = demo["costs_mean"]
         print("  costs (lower is better; demos' mean): " + ", ".join(

@@ -98,7 +98,8 @@ def dynamics_report(env: str, data, qpos, qvel, *, transitions: int = 2000, seed
     tied = [k for k in per if np.array_equal(errs[k], errs[best])]  # the same model and integrator
     out = {"dynamics": per, "best": best if per[best]["reproduced"] >= 0.5 else NEITHER, "tolerance": tolerance,
            "transitions": int(len(next(iter(errs.values()))))}
-    if len(tied) > 1 and out["best"] != NEITHER:  # the same states (d4rl and v5 but for walker's feet): the terminal steps' rewards decide
+    # the same states (gym v4's and v5's hopper and halfcheetah): the terminal steps' rewards decide
+    if len(tied) > 1 and out["best"] != NEITHER:
         rewards = terminal_reward_errors(env, data, qpos, qvel, tied)
         if rewards is not None:
             for k, e in rewards.items():
