@@ -59,7 +59,7 @@ def our_agent(cfg, obs_dim: int, act_dim: int):
     return make_agent(METHOD[cfg.method], cfg, obs_dim, act_dim, cfg.episode_length)
 
 
-def d3rlpy_config(agent_name: str, ours, data):
+def d3rlpy_config(agent_name: str, ours):
     """d3rlpy's config of ``agent_name`` at the settings of ``ours`` (our agent's record)."""
     import d3rlpy
     enc = d3rlpy.models.VectorEncoderFactory(list(ours.hidden))
@@ -141,9 +141,9 @@ def train_d3rlpy(a, cfg, ours, buffer, seed: int) -> dict:
     """One d3rlpy seed at ``cfg`` with our EMA; its final score and, every ``--eval-every`` steps, a curve point."""
     import d3rlpy
     d3rlpy.seed(seed)
-    algo = d3rlpy_config(a.agent, ours, buffer).create(device="cpu:0")
-    curve = []
-    average = None
+    algo = d3rlpy_config(a.agent, ours).create(device="cpu:0")
+    algo.build_with_dataset(buffer)
+    average, curve = Average(algo, cfg.ema_decay), []
 
     def callback(algo, epoch, total_step):
         average(algo, epoch, total_step)
@@ -155,8 +155,6 @@ def train_d3rlpy(a, cfg, ours, buffer, seed: int) -> dict:
             curve.append({"step": total_step, **evaluate(algo.predict, a.env, a.eval_episodes)})
             average.swapped()
 
-    algo.build_with_dataset(buffer)
-    average = Average(algo, cfg.ema_decay)
     t0 = time.perf_counter()
     algo.fit(buffer, n_steps=cfg.steps, n_steps_per_epoch=cfg.steps, show_progress=False, save_interval=10**9,
              experiment_name=f"peer-{a.agent}-s{seed}", logger_adapter=d3rlpy.logging.NoopAdapterFactory(),
@@ -247,7 +245,7 @@ def time_steps(a) -> dict:
     d = resolve_dataset(a.env, a.dataset).data
     ours = our_agent(cfg, d.observations.shape[-1], d.actions.shape[-1])
     buffer = d3rlpy_dataset(d)
-    algo = d3rlpy_config(a.agent, ours, buffer).create(device="cpu:0")
+    algo = d3rlpy_config(a.agent, ours).create(device="cpu:0")
     algo.fit(buffer, n_steps=20, n_steps_per_epoch=20, show_progress=False, save_interval=10**9,
              experiment_name="peer-critic-time", logger_adapter=d3rlpy.logging.NoopAdapterFactory())
     t0 = time.perf_counter()
