@@ -7,7 +7,7 @@
 Three ways to run the same policy (``minsubdt_jax.agents.dt.policy.dt_policy``, K = 20 context) on the same MJX env:
 
 - ``batched``: all episodes in one jitted ``lax.while_loop`` over time, ``vmap`` over episodes (what
-  ``minsubdt_jax.evaluation.evaluate_policy`` does);
+  ``minsubdt_jax.scoring.evaluate_policy`` does);
 - ``sequential``: the official DT code's way: a Python loop over episodes and steps, one jitted policy call
   and one jitted ``env.step`` per step on a single environment;
 - ``sequential-jit``: one episode at a time, but each episode is one jitted while-loop (batch 1), to separate

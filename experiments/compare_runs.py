@@ -15,6 +15,7 @@ import os
 import sys
 
 import numpy as np
+from minsubdt_jax.rundir import per_model
 
 
 def load(run: str) -> dict:
@@ -25,10 +26,10 @@ def load(run: str) -> dict:
     step = mngr.latest_step()
     params = [np.asarray(x) for x in jax.tree.leaves(mngr.restore(step)["params"])]
     with open(os.path.join(run, "metrics.jsonl")) as f:
-        losses = [json.loads(ln)["loss_per_seed"] for ln in f if '"loss"' in ln]
+        losses = [per_model(json.loads(ln), "loss") for ln in f if '"loss"' in ln]
     with open(os.path.join(run, "results.json")) as f:
         res = json.load(f)
-    evals = res.get("eval_per_seed") or [res["eval"]]
+    evals = per_model(res) or [res["eval"]]
     return {"step": step, "params": params, "losses": np.asarray(losses),
             "eval_returns": np.asarray([e["returns"] for e in evals]),
             "dataset": res["dataset"].get("sha256") or res["dataset"]["path"]}

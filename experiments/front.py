@@ -80,10 +80,13 @@ def grid_targets(method: str, demo_costs: np.ndarray, beta: float, n: int) -> li
     return [{PAIR[0]: round(float(x), 4), PAIR[1]: round(float(y), 4)} for x in axes[0] for y in axes[1]]
 
 
-def means(per_seed: list[dict]) -> dict:
-    """Per seed: the mean normalised score and the mean of each cost over its episodes."""
-    return {"normalized": [e["normalized_score_mean"] for e in per_seed],
-            "costs": [[e["costs_mean"][m] for m in PAIR] for e in per_seed]}
+def means(res: dict) -> dict:
+    """Per model of a run's results (or an evaluation's): the mean normalised score and the mean of each cost over
+    its episodes."""
+    from minsubdt_jax.rundir import per_model
+
+    return {"normalized": [e["normalized_score_mean"] for e in per_model(res)],
+            "costs": [[e["costs_mean"][m] for m in PAIR] for e in per_model(res)]}
 
 
 def sweeps_done(out: dict, a) -> bool:
@@ -143,7 +146,7 @@ def run(a, path: str, out: dict) -> None:
         res_dir = train_runs(a, [name])[name]
         with open(os.path.join(res_dir, "results.json")) as f:
             res = json.load(f)  # its recording's hash: another machine may record another file of the recipe
-        out.setdefault("scalar", {})[name] = {**means(res["eval_per_seed"]), "dataset_sha256": res["dataset"]["sha256"]}
+        out.setdefault("scalar", {})[name] = {**means(res), "dataset_sha256": res["dataset"]["sha256"]}
         save()
         landed(name)
 
@@ -167,7 +170,7 @@ def sweep(a, out: dict, save) -> None:
             if any(r["target"] == target for r in done):
                 continue
             ev = evaluate_run(vec, target, a.episodes, method, run=loaded)
-            done.append({"target": target, **means(ev["eval_per_seed"])})
+            done.append({"target": target, **means(ev)})
             c = np.mean(done[-1]["costs"], 0)
             print(f"{method} {target}: costs {c[0]:.3f}, {c[1]:.3f}; normalised "
                   f"{np.mean(done[-1]['normalized']):.1f}", flush=True)

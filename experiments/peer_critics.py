@@ -166,6 +166,8 @@ def train_d3rlpy(a, cfg, ours, buffer, seed: int) -> dict:
 
 def train_ours(a, cfg) -> dict:
     """Our agent on the same file and settings, ``--seeds`` models in one program (resumed if started)."""
+    from minsubdt_jax.rundir import per_model
+
     out = a.ours_out or os.path.join("runs", "peer-critics", name_of(a, cfg))
     path = os.path.join(out, "results.json")
     if not os.path.exists(path):
@@ -185,7 +187,7 @@ def train_ours(a, cfg) -> dict:
                      and r["step"] < cfg.steps]
     return {"run_dir": out, "curve": curve,
             "seeds": [{k: e.get(k) for k in ("normalized_score_mean", "normalized_score_std", "length_mean")}
-                      for e in res["eval_per_seed"]]}
+                      for e in per_model(res)]}
 
 
 def name_of(a, cfg) -> str:

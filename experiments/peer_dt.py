@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 from minsubdt_jax.atomic import write_atomic
+from minsubdt_jax.rundir import per_model
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results", "peer_dt")
@@ -145,7 +146,7 @@ def train_ours(a, cfg) -> dict:
     res = json.load(open(path))
     return {"run_dir": out, "seeds": [{"normalized_score_mean": e["normalized_score_mean"],
                                        "normalized_score_std": e["normalized_score_std"],
-                                       "length_mean": e.get("length_mean")} for e in res["eval_per_seed"]]}
+                                       "length_mean": e.get("length_mean")} for e in per_model(res)]}
 
 
 def run(a) -> dict:

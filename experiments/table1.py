@@ -42,7 +42,7 @@ import table1_compare
 import table1_seeds
 from table1_figures import model_curve, plot_cell_curves, plot_costs
 from gitcommit import commit_results
-from table1_units import (check_critic_settings, check_not_stale, compact, per_seed_results, plan_units,
+from table1_units import (check_critic_settings, check_not_stale, compact, model_results, plan_units,
                           run_name)
 
 from minsubdt_jax.atomic import atomic_open
@@ -120,7 +120,7 @@ def write_unit(res: dict, names: list[str], run_dir: str, env: str, path) -> tup
 
     written, scores = [], []
     for j, name in enumerate(names):
-        one = per_seed_results(res, j)
+        one = model_results(res, j)
         curve = model_curve(run_dir, one["config"])  # the model's method, seed and dataset
         one.update({"curve": curve} if curve else {})
         d, m, s = one["config"]["dataset"], one["config"]["method"], one["config"]["seed"]

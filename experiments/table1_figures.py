@@ -22,7 +22,7 @@ def model_curve(run_dir: str, model: dict) -> dict | None:
     and min-subdominance (means over their episodes; ``final`` marks the last), and its training loss per logged
     step. Kept in the model's result file, so a landed cell's curves outlive the machine that trained it; ``None``
     where the run directory has no evaluation."""
-    from minsubdt_jax.rundir import read_metrics
+    from minsubdt_jax.rundir import per_model, read_metrics
 
     rows = read_metrics(os.path.join(run_dir, "metrics.jsonl"))
     evals = [r for r in rows if "eval_normalized_score" in r]
@@ -34,11 +34,11 @@ def model_curve(run_dir: str, model: dict) -> dict | None:
               and ("eval_dataset" not in r0 or r0["eval_dataset"][i] == model.get("dataset"))), None)
     if k is None:
         raise ValueError(f"{run_dir}: metrics.jsonl evaluates no model {model} (another program's run directory?)")
-    losses = [r for r in rows if "loss_per_seed" in r]
+    losses = [r for r in rows if per_model(r, "loss")]
     return {"step": [r["step"] for r in evals], "final": [bool(r.get("final", False)) for r in evals],
             "normalized_score": [r["eval_normalized_score"][k] for r in evals],
             "min_subdominance": [r["eval_min_subdominance"][k] for r in evals],
-            "loss_step": [r["step"] for r in losses], "loss": [r["loss_per_seed"][k] for r in losses]}
+            "loss_step": [r["step"] for r in losses], "loss": [per_model(r, "loss")[k] for r in losses]}
 
 
 def curves_from_results(rows: list[dict]) -> dict:

@@ -9,6 +9,7 @@ import os
 
 from minsubdt_jax.agents import AGENTS, missing_presets, result_fields
 from minsubdt_jax.methods import METHODS as ALL_METHODS
+from minsubdt_jax.rundir import per_model
 
 
 def run_name(env, dataset, method, seed) -> str:
@@ -80,19 +81,19 @@ def seed_runs(seeds) -> list[tuple[int, int]]:
     return runs
 
 
-def per_seed_results(res: dict, i: int) -> dict:
+def model_results(res: dict, i: int) -> dict:
     """Model ``i`` of a run's results (one of its methods x seeds), shaped as that model's single run would report
     them: its method and seed in the config, its own data summary and evaluation."""
     model = res["models"][i] if "models" in res else {"method": res["config"]["method"], "seed": res["config"]["seed"]}
-    out = {k: v for k, v in res.items() if k not in ("seeds", "models", "methods", "eval_per_seed", "eval_by_method",
+    out = {k: v for k, v in res.items() if k not in ("seeds", "models", "methods", "eval_per_model", "eval_per_seed", "eval_by_method",
                                                         "dataset_per_model")}
     out["config"] = dict(res["config"], method=model["method"], seed=model["seed"], seeds=1,
                          dataset=model.get("dataset", res["config"]["dataset"]))
     if "dataset_per_model" in res:
         own = res["dataset_per_model"][i]  # over several datasets it has its own demos' sample
         out["dataset"] = dict(own, costs_sample=own.get("costs_sample", res["dataset"].get("costs_sample", [])))
-    if "eval_per_seed" in res:
-        out["eval"] = res["eval_per_seed"][i]
+    if per_model(res) is not None:
+        out["eval"] = per_model(res)[i]
     return out
 
 

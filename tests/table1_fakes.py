@@ -27,7 +27,7 @@ def fake_results(cfg):
              "learned_costs": {"heldout_pair_accuracy": 0.8 + 0.01 * s}} for m, s in models]
     res = {"config": dataclasses.asdict(cfg), "seeds": seeds,
            "models": [{k: e[k] for k in ("dataset", "method", "seed") if k in e} for e in evals],
-           "dataset": dict(data[0], costs_sample=[[0.5, 0.5]]), "train": {"steps": 1}, "eval_per_seed": evals,
+           "dataset": dict(data[0], costs_sample=[[0.5, 0.5]]), "train": {"steps": 1}, "eval_per_model": evals,
            "dt_revision": DT_REVISION}
     if len(models) > 1:
         res["dataset_per_model"] = data

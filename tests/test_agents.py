@@ -96,7 +96,7 @@ def test_bc_mlp_trains_and_is_evaluated_like_the_dt(tmp_path, small_dataset_path
     ev = res["eval"]
     assert ev["episodes"] == 3 and np.isfinite(ev["normalized_score_mean"]) and 0 <= ev["min_subdominance_mean"] <= 2
     assert set(res) == {"config", "method", "dataset", "references", "physics", "platform", "seeds", "models",
-                        "train", "eval_per_seed", "eval", "dt_revision"}
+                        "train", "eval_per_model", "eval", "dt_revision"}
     assert res["physics"]["physics"] == "mujoco" and res["physics"]["dynamics"] == "brax"  # auto on the CPU
     assert set(ev) >= {"returns", "costs", "normalized_score_std", "better_than_mean_demo_share", "seconds"}
     records = [json.loads(ln) for ln in open(tmp_path / "mlp" / "metrics.jsonl")]

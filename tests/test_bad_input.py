@@ -25,7 +25,7 @@ def test_plot_into_a_missing_folder_is_one_error(tmp_path, capsys):
     from minsubdt_jax.plot import main as plot_main
 
     (tmp_path / "run").mkdir()
-    (tmp_path / "run" / "metrics.jsonl").write_text(json.dumps({"step": 1, "loss": 1.0, "loss_per_seed": [1.0]}) + "\n")
+    (tmp_path / "run" / "metrics.jsonl").write_text(json.dumps({"step": 1, "loss": 1.0, "loss_per_model": [1.0]}) + "\n")
     assert plot_main([str(tmp_path / "run"), "--out", str(tmp_path / "missing" / "x.png")]) == 2
     err = capsys.readouterr().err
     assert "the folder" in err and "does not exist" in err and err.strip().count("\n") == 0
@@ -106,7 +106,7 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     """What a newcomer reads: `train --help` names every method and says where evaluation runs (C MuJoCo on a CPU,
     not only MJX); `train --costs list` prints the metrics (it was an error); `data --help` explains --env, --seed
     and --horizon; TensorBoard tags every per-model list `<metric>/<method>-s<seed>` (the loss was tagged
-    `loss_per_seed/0`); the learning curve's figure is titled with env, dataset and method."""
+    `loss_per_model/0`); the learning curve's figure is titled with env, dataset and method."""
     from minsubdt_jax import loggers, plot
     from minsubdt_jax.train import parse_args
     from minsubdt_jax.data.__main__ import main as data_main
@@ -125,12 +125,12 @@ def test_the_console_help_lists_every_method_and_metric_and_tags_are_consistent(
     for flag in ("--env {hopper,walker,halfcheetah} the environment", "--seed SEED the recording's seed",
                  "--horizon HORIZON the episodes' length limit"):
         assert flag in help_text, flag
-    tags = loggers.scalars({"step": 10, "loss_per_seed": [0.5, 0.7]}, ["minsubdt-s0", "dt-s0"])
-    assert set(tags) == {"loss_per_seed/minsubdt-s0", "loss_per_seed/dt-s0", "loss_per_seed/mean"}
+    tags = loggers.scalars({"step": 10, "loss_per_model": [0.5, 0.7]}, ["minsubdt-s0", "dt-s0"])
+    assert set(tags) == {"loss_per_model/minsubdt-s0", "loss_per_model/dt-s0", "loss_per_model/mean"}
     ev = loggers.scalars({"step": 10, "eval_return": [1.0, 2.0], "eval_method": ["minsubdt", "dt"],
                           "eval_seed": [0, 0]}, ["minsubdt-s0", "dt-s0"])
     assert set(ev) == {"eval_return/minsubdt-s0", "eval_return/dt-s0", "eval_return/mean"}
-    (tmp_path / "metrics.jsonl").write_text(json.dumps({"step": 10, "loss": 0.5, "loss_per_seed": [0.5]}) + "\n")
+    (tmp_path / "metrics.jsonl").write_text(json.dumps({"step": 10, "loss": 0.5, "loss_per_model": [0.5]}) + "\n")
     titles = []
     import matplotlib.figure
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *_a, **_k: titles.append(fig._suptitle))

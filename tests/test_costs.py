@@ -92,7 +92,7 @@ def test_min_subdominance_ranks_random_hopper_like_returns(small_dataset):
 def test_better_than_demonstrated_means_dominating_the_mean_demo():
     """When no demo fell (their mean fall share is 0), an episode that does not fall either still beats the mean
     demo by being faster: no feature worse, one better. Hand-built hopper episodes of 10 steps, horizon 10."""
-    from minsubdt_jax.evaluation import Scoring, score_episodes
+    from minsubdt_jax.scoring import Scoring, score_episodes
 
     obs = np.zeros((3, 10, 11))
     obs[:, :, 5] = np.array([3.0, 1.5, 3.0])[:, None]  # x cost (4 - v) / 5: 0.2, 0.5, 0.2 (the last falls at 5)

@@ -84,7 +84,7 @@ def test_imports_have_no_cycle_and_only_the_top_imports_agents():
 
     for m in edges:
         visit(m, [])
-    assert "minsubdt_jax.references" in edges["minsubdt_jax.evaluation"]
+    assert "minsubdt_jax.references" in edges["minsubdt_jax.scoring"]
     # below the agents nothing imports them (only the run layer: the loop, its program's models, a run evaluated
     # again at a target of one's choosing); recording a
     # dataset does not load the SAC trainer

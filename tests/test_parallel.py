@@ -18,7 +18,7 @@ COMMON = textwrap.dedent("""
     from minsubdt_jax.agents.dt.agent import make_dt_agent
     from minsubdt_jax.config import PRESETS
     from minsubdt_jax.data import Trajectories, sampler_data
-    from minsubdt_jax.evaluation import Scoring, evaluate_policy
+    from minsubdt_jax.scoring import Scoring, evaluate_policy
     from minsubdt_jax.parallel import make_mesh, replicate
 
     def run(devices):

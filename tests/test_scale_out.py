@@ -45,7 +45,7 @@ def _params(run_dir, like=None):
 
 def _losses(run_dir):
     rows = [json.loads(ln) for ln in open(os.path.join(run_dir, "metrics.jsonl"))]
-    return np.array([r["loss_per_seed"] for r in rows if "loss" in r])  # (evaluation records share the log)
+    return np.array([r["loss_per_model"] for r in rows if "loss" in r])  # (evaluation records share the log)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +70,7 @@ def test_seeds_in_one_program_equal_single_seed_runs(single_runs, small_dataset_
             assert a.shape == (3,) + b.shape[1:] and b.shape[0] == 1
             np.testing.assert_allclose(a[s], b[0], rtol=1e-2, atol=ADAM_NOISE)
         np.testing.assert_allclose(losses[:, s], _losses(run_dir)[:, 0], rtol=1e-5)
-        ev, ev_s = res["eval_per_seed"][s], single["eval"]
+        ev, ev_s = res["eval_per_model"][s], single["eval"]
         assert ev["seed"] == s and ev_s["seed"] == s
         np.testing.assert_array_equal([len(c) for c in ev["costs"]], [len(c) for c in ev_s["costs"]])
         np.testing.assert_allclose(ev["returns"], ev_s["returns"], rtol=1e-3, atol=1e-3)
@@ -99,7 +99,7 @@ def test_methods_in_one_program_equal_single_method_runs(single_runs, small_data
         for a, b in zip(params, params_1):
             np.testing.assert_allclose(a[i], b[0], rtol=1e-2, atol=ADAM_NOISE)
         np.testing.assert_allclose(losses[:, i], _losses(run_dir)[:, 0], rtol=1e-5)
-        ev = res["eval_per_seed"][i]
+        ev = res["eval_per_model"][i]
         assert ev["method"] == m and ev["target_return"] == single["eval"]["target_return"]
         np.testing.assert_allclose(ev["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
         assert res["eval_by_method"][m]["normalized_score_mean"] == ev["normalized_score_mean"]
@@ -184,7 +184,7 @@ def test_datasets_in_one_program_equal_single_dataset_runs(single_runs, small_da
         np.testing.assert_allclose(losses[0, i], _losses(run_dir)[0, 0], rtol=1e-5)
         np.testing.assert_allclose(losses[:, i], _losses(run_dir)[:, 0], rtol=1e-4)
         assert res["dataset_per_model"][i]["sha256"] == single["dataset"]["sha256"]
-        ev = res["eval_per_seed"][i]  # scored against its own demos: the same min-subdominance as alone
+        ev = res["eval_per_model"][i]  # scored against its own demos: the same min-subdominance as alone
         np.testing.assert_allclose(ev["returns"], single["eval"]["returns"], rtol=1e-3, atol=1e-3)
         np.testing.assert_allclose(ev["min_subdominance_mean"], single["eval"]["min_subdominance_mean"], rtol=1e-4)
     assert set(res["eval_by_method"]) == {f"{d}/minsubdt" for d in (small_dataset_path, other)}

@@ -121,7 +121,7 @@ def test_load_policy_acts_as_the_batched_rollout_does(vec_run):
 
     import minsubdt_jax.envs.gym_env  # noqa: F401  (registers the envs)
     from minsubdt_jax.evaluate import load_policy
-    from minsubdt_jax.evaluation import rollout_seeds
+    from minsubdt_jax.scoring import rollout_seeds
 
     policy = load_policy(vec_run, target={"x_velocity": 0.2})
     assert np.allclose(policy.target, [-0.2, 0.0])

@@ -89,7 +89,7 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
         if cfg.method == "minsubdt,bc" and cfg.seed == 0:  # the first program logs one evaluation of its models
             os.makedirs(cfg.out)
             with open(os.path.join(cfg.out, "metrics.jsonl"), "w") as f:
-                f.write(json.dumps({"step": 1, "loss": 1.0, "loss_per_seed": [1.5, 0.5]}) + "\n" + json.dumps(
+                f.write(json.dumps({"step": 1, "loss": 1.0, "loss_per_model": [1.5, 0.5]}) + "\n" + json.dumps(
                     {"step": 1, "final": True, "eval_method": ["minsubdt", "bc"], "eval_seed": [0, 0],
                      "eval_normalized_score": [50.0, 30.0], "eval_min_subdominance": [1.0, 1.0]}) + "\n")
         return fake_results(cfg)
@@ -124,7 +124,7 @@ def test_sweep_groups_skips_and_aggregates_partial_results(table1, tmp_path):
     assert r2["config"]["seed"] == 2 and r2["config"]["seeds"] == 1 and r2["config"]["method"] == "minsubdt-learned"
     assert r2["eval"]["normalized_score_mean"] == 42.0
     assert r2["dataset"]["learned_costs"]["heldout_pair_accuracy"] == pytest.approx(0.82)
-    assert "dataset_per_model" not in r2 and "eval_per_seed" not in r2 and r2["dataset"]["costs_sample"]
+    assert "dataset_per_model" not in r2 and "eval_per_model" not in r2 and "eval_per_seed" not in r2 and r2["dataset"]["costs_sample"]
     bc0 = json.loads((res_dir / "hopper-medium-bc-s0.json").read_text())
     assert bc0["config"]["method"] == "bc" and bc0["eval"]["normalized_score_mean"] == 30.0
     assert bc0["curve"]["normalized_score"] == [30.0] and bc0["curve"]["loss"] == [0.5]  # its own model's curve

@@ -23,7 +23,7 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path, monkeypatch):
     for name in ("walker-medium-minsubdt+dt-s0-1", "walker-medium-replay-dt-s0", "walker-medium-bc-s0",
                  "walker-medium-expert-dt-s1"):  # the last: one seed of a cell whose result files hold all
         (runs / name).mkdir(parents=True)
-        recs = [{"step": 10, "loss": 1.0, "loss_per_seed": [1.0]},
+        recs = [{"step": 10, "loss": 1.0, "loss_per_model": [1.0]},
                 {"step": 10, "final": True, "eval_method": ["dt"], "eval_seed": [0], "eval_normalized_score": [40.0],
                  "eval_min_subdominance": [1.0]}]
         (runs / name / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
@@ -33,10 +33,10 @@ def test_report_draws_each_cells_training_curves(table1, tmp_path, monkeypatch):
     # a program of two models (dt s0, bc s1): each result file keeps its own model's curve
     prog = tmp_path / "runs" / "elsewhere"
     prog.mkdir()
-    recs = [{"step": 5, "loss": 2.0, "loss_per_seed": [3.0, 1.0]},
+    recs = [{"step": 5, "loss": 2.0, "loss_per_model": [3.0, 1.0]},
             {"step": 5, "eval_method": ["dt", "bc"], "eval_seed": [0, 1], "eval_normalized_score": [10.0, 20.0],
              "eval_min_subdominance": [1.0, 2.0]},
-            {"step": 10, "loss": 1.0, "loss_per_seed": [1.5, 0.5]},
+            {"step": 10, "loss": 1.0, "loss_per_model": [1.5, 0.5]},
             {"step": 10, "final": True, "eval_method": ["dt", "bc"], "eval_seed": [0, 1],
              "eval_normalized_score": [30.0, 40.0], "eval_min_subdominance": [0.5, 1.5]}]
     (prog / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))

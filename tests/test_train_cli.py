@@ -273,7 +273,7 @@ def test_plot_compares_runs_with_mean_and_std_over_seeds(full_run, tmp_path):
 
     other = tmp_path / "two"
     other.mkdir()
-    recs = [{"step": 5, "loss": 1.5, "loss_per_seed": [1.0, 2.0, 1.0, 2.0]},
+    recs = [{"step": 5, "loss": 1.5, "loss_per_model": [1.0, 2.0, 1.0, 2.0]},
             {"step": 5, "eval_normalized_score": [10.0, 20.0, 30.0, 50.0], "eval_min_subdominance": [1, 1, 0, 0],
              "eval_method": ["dt", "dt", "bc", "bc"], "eval_seed": [0, 1, 0, 1], "final": True}]
     (other / "metrics.jsonl").write_text("\n".join(map(json.dumps, recs)) + "\n")

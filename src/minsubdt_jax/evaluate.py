@@ -36,7 +36,7 @@ from .agents.base import PolicyInputs, eval_params, init_seed_states, optimizer_
 from .config import Config, validate
 from .costs import cost_metrics
 from .envs import resolve_physics
-from .evaluation import across_seeds
+from .scoring import across_seeds
 from .flags import load_fields
 from .methods import get_method
 from .parallel import available_bytes, make_mesh
@@ -161,7 +161,7 @@ def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | N
     names = [x.name for x in per_model[0].metrics]
     asked = ({n: 0.0 - float(v) for n, v in zip(names, np.atleast_1d(token))} if m.vector else float(token))
     out = {"run": run_dir, "method": m.name, "checkpoint_step": run.step, "target": asked, "episodes": episodes,
-           "eval": per[0] if len(per) == 1 else across_seeds(per), "eval_per_seed": per}
+           "eval": per[0] if len(per) == 1 else across_seeds(per), "eval_per_model": per}
     if write:
         label = ",".join(f"{n}={v:g}" for n, v in asked.items()) if m.vector else f"{asked:g}"
         os.makedirs(os.path.join(run_dir, "evaluations", m.name), exist_ok=True)
@@ -242,7 +242,7 @@ def main(argv=None) -> int:
         at = (",".join(f"{k}={v:g}" for k, v in out["target"].items()) if isinstance(out["target"], dict)
               else f"{out['target']:g}")
         print(f"{out['method']} at {at}: normalised {e['normalized_score_mean']:.1f}, costs "
-              + ", ".join(f"{k} {v:.3f}" for k, v in e["costs_mean"].items()) + f" ({len(out['eval_per_seed'])} "
+              + ", ".join(f"{k} {v:.3f}" for k, v in e["costs_mean"].items()) + f" ({len(out['eval_per_model'])} "
               f"seed(s) x {a.episodes} episodes); wrote {a.run_dir}/evaluations/{out['method']}/")
     return exit_code(run)
 

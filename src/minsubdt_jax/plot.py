@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from .rundir import exit_code, model_labels, read_metrics
+from .rundir import exit_code, model_labels, per_model, read_metrics
 from .atomic import save_figure
 
 
@@ -26,7 +26,7 @@ def curves(run_dir: str) -> dict:
         raise ValueError(f"{run_dir}: no metrics.jsonl (not a run directory of python -m minsubdt_jax.train)")
     rows = read_metrics(path)
     losses = [r for r in rows if "loss" in r]
-    per = np.array([r.get("loss_per_seed", [r["loss"]]) for r in losses], float)
+    per = np.array([(per_model(r, "loss") or [r["loss"]]) for r in losses], float)
     out = {"loss": (np.array([r["step"] for r in losses]), per.mean(1), per.std(1)), "score": {},
            "min_subdominance": {}}
     evals = [r for r in rows if "eval_normalized_score" in r]

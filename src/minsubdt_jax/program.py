@@ -18,7 +18,7 @@ import numpy as np
 
 from .agents.base import PolicyInputs
 from .costs import cost_metrics
-from .evaluation import Scoring, evaluate_policy
+from .scoring import Scoring, evaluate_policy
 from .methods import Method
 from .parallel import available_bytes, replicate
 from .pipeline import Prepared
@@ -127,17 +127,17 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
             for ev, mo, p in zip(evs, models, per_model)]
 
 
-def eval_record(step: int, per_seed: list[dict], final: bool = False) -> dict:
+def eval_record(step: int, per_model: list[dict], final: bool = False) -> dict:
     """The ``metrics.jsonl`` record of one evaluation: per model, its method and seed (and dataset, over several),
     and the mean and the standard deviation over its episodes of the normalised score, min-subdominance and
     return."""
-    rec = {"step": step, "eval_episodes": per_seed[0]["episodes"], "final": final,
-           "eval_method": [e["method"] for e in per_seed], "eval_seed": [e["seed"] for e in per_seed]}
-    if "dataset" in per_seed[0]:
-        rec["eval_dataset"] = [e["dataset"] for e in per_seed]
+    rec = {"step": step, "eval_episodes": per_model[0]["episodes"], "final": final,
+           "eval_method": [e["method"] for e in per_model], "eval_seed": [e["seed"] for e in per_model]}
+    if "dataset" in per_model[0]:
+        rec["eval_dataset"] = [e["dataset"] for e in per_model]
     for key in ("normalized_score", "min_subdominance", "return"):
-        rec[f"eval_{key}"] = [e[f"{key}_mean"] for e in per_seed]
-        rec[f"eval_{key}_std"] = [e[f"{key}_std"] for e in per_seed]
+        rec[f"eval_{key}"] = [e[f"{key}_mean"] for e in per_model]
+        rec[f"eval_{key}_std"] = [e[f"{key}_std"] for e in per_model]
     return rec
 
 

@@ -162,6 +162,13 @@ def json_text(obj, **kw) -> str:
     return json.dumps(clean(obj), allow_nan=False, **kw)
 
 
+def per_model(record: dict, what: str = "eval"):
+    """A run record's list over its models: ``results.json``'s ``eval_per_model`` (``what="eval"``) or a
+    ``metrics.jsonl`` record's ``loss_per_model`` (``"loss"``); runs written before the rename name them
+    ``*_per_seed``. None where the record has none."""
+    return record.get(f"{what}_per_model", record.get(f"{what}_per_seed"))
+
+
 def read_metrics(path: str) -> list[dict]:
     """The records of a ``metrics.jsonl``; a torn last line (a kill while it was written) is dropped, a damaged
     line before it is an error."""

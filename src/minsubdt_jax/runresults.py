@@ -13,7 +13,7 @@ from .agents.base import eval_params
 from .agents.dt.networks import DT_REVISION
 from .config import PRESETS
 from .envs import physics_record
-from .evaluation import across_seeds
+from .scoring import across_seeds
 from .program import eval_record, evaluate_models
 from .plot import plot_learning_curve
 from .rundir import json_text, write_atomic
@@ -80,7 +80,7 @@ def _final_eval(run: RunPlan, agent, state, step: int, per_model, own: list, res
     seeds), logged and printed."""
     cfg, te = run.cfg, time.time()
     per = evaluate_run_models(run, agent, eval_params(state), per_model, cfg.eval_episodes)
-    results["eval_per_seed"] = per  # one entry per model (its method and seed inside)
+    results["eval_per_model"] = per  # one entry per model (its method and seed inside)
     name_of = lambda e: e["method"] if len(cfg.datasets) == 1 else f"{e['dataset']}/{e['method']}"  # noqa: E731
     by_method = {}  # method (dataset/method over several datasets) -> its models' indices
     for i, e in enumerate(per):

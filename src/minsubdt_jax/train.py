@@ -14,7 +14,7 @@ Several processes (one machine or many; each runs the same command with its own 
     python -m minsubdt_jax.train --env hopper --num-processes 2 --process-id 1 --coordinator-address localhost:8476
 
 The data side is :mod:`minsubdt_jax.pipeline`, the method a record of :mod:`minsubdt_jax.methods`, the learner an
-agent of :mod:`minsubdt_jax.agents`, the scoring :mod:`minsubdt_jax.evaluation`. Here: the run. ``--seeds S`` models
+agent of :mod:`minsubdt_jax.agents`, the scoring :mod:`minsubdt_jax.scoring`. Here: the run. ``--seeds S`` models
 train in one jitted ``lax.scan`` chunk (``vmap`` over a leading seed axis), the batch split over every device of
 every process (:mod:`minsubdt_jax.parallel`); an orbax checkpoint follows each chunk; every ``--eval-every`` steps
 and at the end all seeds are evaluated in one rollout program. The run directory holds ``config.json``,
@@ -123,18 +123,18 @@ def train_loop(run: RunPlan, started: Started, models: ModelData, log) -> Traine
             pieces.append(jax.block_until_ready(piece))
             bar.update(m)
         losses, parts = merge_losses(pieces)  # [n, S]; a critic agent's losses by name beside
-        per_seed = np.asarray(gather(losses)).mean(0)  # [S]
-        if not np.isfinite(per_seed).all():
+        per_model = np.asarray(gather(losses)).mean(0)  # [models]
+        if not np.isfinite(per_model).all():
             last = f"the last checkpoint is step {step}" if step else "no checkpoint was written"
-            raise ValueError(f"training diverged: non-finite loss {per_seed.tolist()} in steps {step + 1}-"
+            raise ValueError(f"training diverged: non-finite loss {per_model.tolist()} in steps {step + 1}-"
                              f"{step + n} (not checkpointed; {last}); try a lower --learning-rate")
         step += n
-        log({"step": step, "loss": float(per_seed.mean()), "loss_per_seed": per_seed.tolist(),
+        log({"step": step, "loss": float(per_model.mean()), "loss_per_model": per_model.tolist(),
              **({"loss_parts": {k: float(np.mean(gather(v))) for k, v in parts.items()}} if parts else {}),
              "chunk_seconds": time.time() - tc})
         if cfg.eval_every and step % cfg.eval_every == 0 and step < cfg.steps:
             log(periodic_eval(run, agent, state, step, models.per_model))
-        bar.set_postfix(loss=f"{per_seed.mean():.4f}")
+        bar.set_postfix(loss=f"{per_model.mean():.4f}")
         return step
 
     def save(step, stopping):

@@ -32,7 +32,7 @@ import numpy as np
 from ..behavior.snapshots import load_policy, load_replay_policies, make_policy_rollout, replay_weights
 from ..caches import cache_dir
 from ..envs import check_dataset, env_spec, resolve_physics
-from ..evaluation import score_episodes
+from ..scoring import score_episodes
 from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
 from .minari_io import PREFIX, open_minari
@@ -226,7 +226,7 @@ def _remove_orphans(path: str, locked: bool = False) -> None:
 
 def summary(env: str, data: Trajectories, horizon: int = 1000) -> dict:
     """Episodes, transitions, return, normalised score and engineered cost means of a dataset, scored as any
-    policy's episodes are (:func:`minsubdt_jax.evaluation.score_episodes`)."""
+    policy's episodes are (:func:`minsubdt_jax.scoring.score_episodes`)."""
     s = score_episodes(env, data.observations, data.lengths, data.rewards, terminated=data.terminals,
                        horizon=max(horizon, data.max_len)).summary()
     keep = ("return_mean", "return_std", "normalized_score_mean", "normalized_score_std", "length_mean", "costs_mean")

@@ -1,4 +1,6 @@
-"""Evaluation of any policy: batched rollouts (MJX or C MuJoCo) and their scores.
+"""Scoring of any policy: batched rollouts (MJX or C MuJoCo) and their scores (a trained run re-scored from its
+directory is :mod:`minsubdt_jax.evaluate`).
+
 
 * :func:`rollout_seeds` rolls out S models of one policy (any agent's, :mod:`minsubdt_jax.agents`) in one program
   (``vmap`` over the seed axis of the policy inputs; in MJX the episodes split over a device mesh);
@@ -160,18 +162,18 @@ def evaluate_policy(env: str, agent, inputs, *, num_episodes: int, horizon: int,
             for i in range(len(seeds))]
 
 
-def across_seeds(per_seed: list[dict]) -> dict:
+def across_seeds(evals: list[dict]) -> dict:
     """The seed-level summary of a multi-seed run: mean ± std over seeds (n = S) of each seed's mean, and every
     seed's episodes pooled for ``returns`` and ``costs``."""
-    out = {"seeds": [e["seed"] for e in per_seed], "episodes": sum(e["episodes"] for e in per_seed)}
+    out = {"seeds": [e["seed"] for e in evals], "episodes": sum(e["episodes"] for e in evals)}
     for base in ("return", "normalized_score", "min_subdominance", "learned_min_subdominance"):
-        if base + "_mean" in per_seed[0]:
-            v = np.array([e[base + "_mean"] for e in per_seed])
+        if base + "_mean" in evals[0]:
+            v = np.array([e[base + "_mean"] for e in evals])
             out.update({base + "_mean": float(v.mean()), base + "_std": float(v.std()), base + "_per_seed": v.tolist()})
     for key in ("length_mean", "better_than_mean_demo_share"):
-        out[key] = float(np.mean([e[key] for e in per_seed]))
-    out["costs_mean"] = {k: float(np.mean([e["costs_mean"][k] for e in per_seed])) for k in per_seed[0]["costs_mean"]}
-    out["returns"] = [r for e in per_seed for r in e["returns"]]
-    out["costs"] = [c for e in per_seed for c in e["costs"]]
-    out["target_return"] = per_seed[0]["target_return"]
+        out[key] = float(np.mean([e[key] for e in evals]))
+    out["costs_mean"] = {k: float(np.mean([e["costs_mean"][k] for e in evals])) for k in evals[0]["costs_mean"]}
+    out["returns"] = [r for e in evals for r in e["returns"]]
+    out["costs"] = [c for e in evals for c in e["costs"]]
+    out["target_return"] = evals[0]["target_return"]
     return out
