@@ -7,6 +7,8 @@
 #                                      # spread over the episode (minsubdt-iql vs minsubdt-iql-spread, ...)
 #   bash experiments/queue.sh peers    # issue 72: d3rlpy's critic agents on our files (experiments/peer_critics.py)
 #   bash experiments/queue.sh v5       # issue 73: hopper medium recorded in gymnasium's v5 (experiments/v5_cell.py)
+#   bash experiments/queue.sh behavior # issue 74: SAC behaviour policies at trade-offs of speed and energy
+#                                      # (experiments/tradeoff_policies.py), halfcheetah then hopper
 #   bash experiments/queue.sh front    # issue 55: the fronts' remaining cells
 #   bash experiments/queue.sh status   # what each lane has left, from the committed result files, and the runs
 #                                      # under way that this machine's checkpoints resume
@@ -41,6 +43,7 @@ PEER_CELLS=("td3bc hopper medium" "iql hopper medium" "iql walker medium-replay"
             "cql hopper medium --steps 20000 --seeds 2 --eval-every 5000"
             "bear hopper medium --steps 30000 --seeds 2 --eval-every 5000")
 FRONT_CELLS=("walker medium-replay" "halfcheetah medium-replay" "walker medium")
+BEHAVIOR_ENVS=(halfcheetah hopper)  # issue 74: halfcheetah and one of hopper or walker (hopper trains 3x faster)
 
 table() {
     wait_for "experiments/table1.py run"
@@ -96,6 +99,14 @@ v5() {
 experiments/queue.sh v5" experiments/results/v5_cell.json experiments/results/v5_cell.md
 }
 
+behavior() {  # each policy committed as it lands (the family and its report) by the script itself
+    wait_for "experiments/tradeoff_policies.py run"
+    for env in "${BEHAVIOR_ENVS[@]}"; do
+        log "trade-off policies $env"
+        python experiments/tradeoff_policies.py run --env "$env" --commit || { log "behavior $env rc=$?"; return 1; }
+    done
+}
+
 front() {
     wait_for "experiments/front.py run"
     # issue 55 yields to issue 54's lanes: under setsid each lane is its own scheduler autogroup, in which
@@ -138,6 +149,10 @@ for name in curves:
     state = "missing" if not os.path.exists(f) else "partial" if json.load(open(f)).get("partial") else "done"
     print(f"curve {name}: {state}")
 print(f"v5 cell: {'done' if os.path.exists(f'{R}/v5_cell.json') else 'missing'}")
+for env in ("halfcheetah", "hopper"):
+    f = f"src/minsubdt_jax/behavior/snapshots/{env}/tradeoffs/manifest.json"
+    got = [p["energy_weight"] for p in json.load(open(f))["policies"]] if os.path.exists(f) else []
+    print(f"trade-off policies {env}: lambda {got or 'none'} committed")
 peers = sorted(glob.glob(f"{R}/peer_critics/*-*.json"))
 for f in (p for p in peers if not os.path.basename(p).startswith("time-")):
     r = json.load(open(f))
@@ -157,8 +172,8 @@ PY
 
 {  # parsed whole before it runs, and exits: an edit of this file does not reach a lane that is running
     case "${1:-}" in
-        table | curves | peers | v5 | front | status) "$1" ;;
-        *) echo "usage: bash experiments/queue.sh table|curves|peers|v5|front|status" >&2; exit 2 ;;
+        table | curves | peers | v5 | behavior | front | status) "$1" ;;
+        *) echo "usage: bash experiments/queue.sh table|curves|peers|v5|behavior|front|status" >&2; exit 2 ;;
     esac
     exit
 }

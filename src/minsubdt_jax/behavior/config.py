@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from dataclasses import dataclass
 
 from ..flags import add_flags
@@ -31,6 +32,9 @@ class SACConfig:
     chunk_steps: int = 2000  # env steps per jitted chunk (a log line after each)
     eval_every: int = 10_000  # env steps between evaluation + snapshot + checkpoint
     eval_episodes: int = 8  # episodes per evaluation
+    # lambda: train on r = v_x - lambda * |a|^2 (+ the healthy reward of hopper and walker) instead of the env's own
+    # reward, a policy at one trade-off between speed and energy (behavior.tradeoffs); unset: the env's reward
+    energy_weight: float | None = None
 
     def run_dir(self) -> str:
         return self.out or f"runs/behavior/{env_spec(self.env).name}"
@@ -46,6 +50,8 @@ def validate(cfg: SACConfig) -> SACConfig:
                  "buffer_size", "episode_length", "chunk_steps", "eval_every", "eval_episodes"):
         if not getattr(cfg, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be > 0, got {getattr(cfg, name)}")
+    if cfg.energy_weight is not None and not 0 <= cfg.energy_weight < float("inf"):
+        raise ValueError(f"--energy-weight must be finite and >= 0, got {cfg.energy_weight}")
     if not (0 < cfg.gamma < 1 and 0 < cfg.tau <= 1 and cfg.min_replay >= cfg.batch_size):
         raise ValueError("need 0 < --gamma < 1, 0 < --tau <= 1 and --min-replay >= --batch-size")
     for name in ("chunk_steps", "eval_every", "min_replay"):
@@ -54,6 +60,13 @@ def validate(cfg: SACConfig) -> SACConfig:
     if cfg.eval_every % cfg.chunk_steps or cfg.min_replay % cfg.chunk_steps:
         raise ValueError("--eval-every and --min-replay must be multiples of --chunk-steps")
     return cfg
+
+
+def train_command(run_cfg: dict) -> str:
+    """The ``behavior.train`` command line of a run's config (``config.json``): its flags off their defaults."""
+    defaults = dataclasses.asdict(SACConfig())
+    flags = [f"--{k.replace('_', '-')} {v}" for k, v in run_cfg.items() if k != "env" and v != defaults.get(k)]
+    return " ".join(["python -m minsubdt_jax.behavior.train --env", run_cfg["env"], *flags])
 
 
 def parse_args(argv=None) -> tuple[SACConfig, bool]:

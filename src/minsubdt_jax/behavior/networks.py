@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Sequence
 
 import flax.linen as nn
+import jax
 import jax.numpy as jnp
 
 from ..networks import MLP, Critics, tanh_gaussian_sample
@@ -55,6 +56,15 @@ def policy_step(params, carry, obs, prev_reward, t, rng):
     mean, log_std = actor_from_params(params).apply(params, obs)
     action, _ = sample_tanh_gaussian(mean, log_std, rng)
     return carry, action
+
+
+def amateur_policy_step(params, carry, obs, prev_reward, t, rng):
+    """PEDA's "amateur" behaviour (D4MORL, Zhu et al. 2023): the stochastic actor's action, scaled with probability
+    0.65 by a factor drawn from U(0.35, 1.65) (one factor per step; the rollout clips to [-1, 1])."""
+    k_act, k_coin, k_scale = jax.random.split(rng, 3)
+    carry, action = policy_step(params, carry, obs, prev_reward, t, k_act)
+    scale = jnp.where(jax.random.uniform(k_coin) < 0.65, jax.random.uniform(k_scale, minval=0.35, maxval=1.65), 1.0)
+    return carry, action * scale
 
 
 def deterministic_policy_step(params, carry, obs, prev_reward, t, rng):

@@ -19,7 +19,6 @@ MuJoCo or MJX, ``auto`` by default): the uniform-random policy's and the expert'
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import shutil
@@ -31,7 +30,7 @@ from ..caches import enable_compilation_cache
 from ..envs import ENVS, PHYSICS, env_spec, resolve_physics
 from ..rundir import exit_code
 from .snapshots import POLICY_DIR, load_manifest, load_snapshot, measure_return
-from .config import SACConfig
+from .config import train_command
 from ..atomic import atomic_open
 
 MEDIUM_RANGE = (0.35, 0.6)
@@ -91,7 +90,7 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
         "training": {"config": run_cfg, "env_steps": last["step"], "wall_seconds": last["wall_seconds"],
                      "curve": [{k: s[k] for k in ("step", "wall_seconds", "return_mean")} for s in snaps]},
         # --steps: where the run's snapshots end (a run may be stopped early, or resumed further)
-        "commands": [_train_command({**run_cfg, "steps": snaps[-1]["step"]}),
+        "commands": [train_command({**run_cfg, "steps": snaps[-1]["step"], "out": None}),
                      f"python -m minsubdt_jax.behavior.policies --env {name} --run {run} --medium-ratio "
                      f"{medium_ratio} --replay {replay} --reference-episodes {reference_episodes} --physics {physics}"],
     }
@@ -101,14 +100,6 @@ def export(env: str, run: str, medium_ratio: float = 0.45, replay: int = 8, refe
     say(f"medium step {medium['step']} (ratio {medium['ratio']:.2f}); replay steps "
         f"{[s['step'] for s in replay_snaps]} -> {out}")
     return manifest
-
-
-def _train_command(run_cfg: dict) -> str:
-    """The ``behavior.train`` command line that reproduces ``run_cfg`` (fields off their defaults)."""
-    defaults = dataclasses.asdict(SACConfig())
-    flags = [f"--{k.replace('_', '-')} {v}" for k, v in run_cfg.items()
-             if k not in ("env", "out") and v != defaults.get(k)]
-    return " ".join(["python -m minsubdt_jax.behavior.train --env", run_cfg["env"], *flags])
 
 
 def main(argv=None) -> int:

@@ -76,13 +76,15 @@ def replay_weights(env: str) -> list[float]:
     return [warmup] + [max(hi - lo, 0.0) for lo, hi in zip(edges, edges[1:])]
 
 
-def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int, physics: str = "auto"):
-    """``(run, params)``: the rollout (``physics``, brax dynamics) of the stochastic actor ``actor_params``
-    (``None``: uniform random actions) over ``episodes`` parallel episodes, and the parameters to call it with."""
+def make_policy_rollout(env: str, actor_params, episodes: int, horizon: int, physics: str = "auto",
+                        step=policy_step):
+    """``(run, params)``: the rollout (``physics``, brax dynamics) of the actor ``actor_params`` acting by ``step``
+    (the stochastic actor; ``None`` params: uniform random actions) over ``episodes`` parallel episodes, and the
+    parameters to call it with."""
     if actor_params is None:
         return (make_rollout(env, random_policy, episodes, horizon, physics=physics),
                 np.zeros(env_spec(env).act_dim, np.float32))
-    return make_rollout(env, policy_step, episodes, horizon, physics=physics), actor_params
+    return make_rollout(env, step, episodes, horizon, physics=physics), actor_params
 
 
 def measure_return(env: str, actor_params, episodes: int, horizon: int = 1000, seed: int = 0,

@@ -36,10 +36,11 @@ from ..caches import enable_compilation_cache
 from ..envs import MjxEnv, env_spec, make_rollout
 from ..loop import chunk_loop
 from ..rundir import check_run_dir, checkpoint_manager, exit_code, truncate_metrics, write_atomic
-from .config import SACConfig, parse_args, validate
+from .config import SACConfig, parse_args, train_command, validate
 from .losses import Transition, actor_loss, alpha_loss, critic_loss
 from .networks import Actor, DoubleCritic, policy_step, sample_tanh_gaussian
 from .snapshots import save_snapshot
+from .tradeoffs import objectives
 
 RESUMABLE_CHANGES = ("steps", "out")
 
@@ -78,6 +79,8 @@ class SAC:
         self.critic = DoubleCritic((cfg.hidden, cfg.hidden))
         self.tx = optax.adam(cfg.learning_rate)
         self.target_entropy = -float(self.spec.act_dim)
+        # the training reward is the env's plus reshape * |a|^2: the env's control cost swapped for lambda's
+        self.reshape = 0.0 if cfg.energy_weight is None else self.spec.dynamics["brax"].ctrl_cost - cfg.energy_weight
 
     def init(self, rng) -> tuple[SACState, Any]:
         """A fresh state (empty buffer) and freshly reset environments."""
@@ -137,11 +140,12 @@ class SAC:
         sampled, _ = sample_tanh_gaussian(*self.actor.apply(state.actor_params, env_state.obs), k_act)
         action = jnp.where(explore, uniform, sampled)
         nstate = jax.vmap(self.env.step)(env_state, action)
+        reward = nstate.reward + self.reshape * jnp.sum(jnp.square(action), -1)
         terminal = nstate.done > 0
         ep_len = state.episode_len + 1
-        ep_ret = state.episode_return + nstate.reward
+        ep_ret = state.episode_return + reward
         ended = terminal | (ep_len >= cfg.episode_length)
-        rows = Transition(obs=env_state.obs, action=action, reward=nstate.reward,
+        rows = Transition(obs=env_state.obs, action=action, reward=reward,
                           discount=1.0 - terminal.astype(jnp.float32), next_obs=nstate.obs)
         buffer = jax.tree.map(lambda b, r: jax.lax.dynamic_update_slice_in_dim(b, r, state.buffer_pos, 0),
                               state.buffer, rows)
@@ -191,10 +195,17 @@ class SAC:
         _CHUNKS[key] = jax.jit(chunk, donate_argnums=(0, 1))
         return _CHUNKS[key]
 
-    def evaluate(self, actor_params, rng) -> np.ndarray:
-        """Returns ``[eval_episodes]`` of the stochastic policy over ``episode_length``-step episodes."""
+    def evaluate(self, actor_params, rng) -> dict:
+        """The stochastic policy over ``eval_episodes`` episodes of ``episode_length`` steps: ``return`` (the env's
+        reward) ``[n]``, and with ``energy_weight`` the training reward's return ``objective`` and the
+        :func:`~minsubdt_jax.behavior.tradeoffs.objectives`."""
         run = make_rollout(self.cfg.env, policy_step, self.cfg.eval_episodes, self.cfg.episode_length)
-        return np.asarray(jax.device_get(run(actor_params, (), rng).rewards.sum(1)))
+        ro = jax.device_get(run(actor_params, (), rng))
+        out = {"return": np.asarray(ro.rewards).sum(1)}
+        if self.cfg.energy_weight is not None:
+            speed, energy = objectives(self.spec.name, ro)
+            out.update(objective=out["return"] + self.reshape * energy, speed=speed, energy=energy)
+        return out
 
 
 def _distinct(tree):
@@ -254,7 +265,7 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
         if snapshot_due(step) or stopping:
             mngr.save(step, args=ocp.args.StandardSave(state))
 
-    chunk_loop(start, cfg.steps, chunk, save, resume=resume_command(cfg), verbose=verbose, unit="env-step")
+    chunk_loop(start, cfg.steps, chunk, save, resume=train_command(dataclasses.asdict(cfg)) + " --resume", verbose=verbose, unit="env-step")
     with open(snaps_path) as f:
         return [json.loads(ln) for ln in f if ln.strip()]
 
@@ -262,23 +273,18 @@ def train(cfg: SACConfig, resume: bool = False, verbose: bool = True) -> list[di
 def _snapshot(sac, state, step: int, out: str, snaps_path: str, bar) -> None:
     """Evaluate the actor at ``step``, save it as a snapshot and append its record to ``snapshots.jsonl``."""
     te = time.time()
-    returns = sac.evaluate(state.actor_params, jax.random.fold_in(jax.random.PRNGKey(sac.cfg.seed + 1), step))
-    name = f"step_{step:08d}.npz"
+    ev = sac.evaluate(state.actor_params, jax.random.fold_in(jax.random.PRNGKey(sac.cfg.seed + 1), step))
+    returns, name = ev["return"], f"step_{step:08d}.npz"
     save_snapshot(os.path.join(out, "snapshots", name), state.actor_params, env=sac.spec.name, step=step,
                   return_mean=returns.mean())
     rec = {"step": step, "snapshot": name, "return_mean": float(returns.mean()), "return_std": float(returns.std()),
-           "episodes": len(returns), "wall_seconds": float(state.wall_seconds), "eval_seconds": time.time() - te}
+           "episodes": len(returns), "wall_seconds": float(state.wall_seconds), "eval_seconds": time.time() - te,
+           **{f"{k}_mean": float(np.mean(v)) for k, v in ev.items() if k != "return"}}
     with open(snaps_path, "a") as f:
         f.write(json.dumps(rec) + "\n")
     if bar is not None:
         bar.write(f"step {step}: eval return {rec['return_mean']:.1f} ± {rec['return_std']:.1f} "
                   f"({rec['episodes']} episodes), wall {rec['wall_seconds']:.0f} s")
-
-
-def resume_command(cfg: SACConfig) -> str:
-    """The command that continues ``cfg``'s run: its flags that differ from the defaults, and ``--resume``."""
-    flags = [f"--{k.replace('_', '-')} {v}" for k, v in dataclasses.asdict(cfg).items() if v != getattr(SACConfig, k)]
-    return " ".join(["python -m minsubdt_jax.behavior.train", *flags, "--resume"])
 
 
 def main(argv=None) -> int:

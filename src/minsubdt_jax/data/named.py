@@ -9,7 +9,11 @@
 * ``medium-replay``: D4RL's replay buffer up to the medium checkpoint, rebuilt from the committed snapshots of
   that training: the random policy (SAC's warm-up) and each snapshot record shares of the transitions in
   proportion to the env steps they stand for (:func:`~minsubdt_jax.behavior.snapshots.replay_weights`);
-* ``medium-expert``: ``medium`` ∪ ``expert`` (each of ``transitions``, so twice the size, as in D4RL).
+* ``medium-expert``: ``medium`` ∪ ``expert`` (each of ``transitions``, so twice the size, as in D4RL);
+* ``mo-expert`` / ``mo-amateur`` (issue 74, D4MORL's two kinds): the committed trade-off policies
+  (:mod:`minsubdt_jax.behavior.tradeoffs`) in equal shares, the stochastic actor, or PEDA's amateur (its action
+  scaled by U(0.35, 1.65) with probability 0.65); each transition labelled with its policy's preference
+  ``infos/preference`` ``[speed, energy]``.
 
 Episodes are whole (``horizon`` steps unless terminated) and collected in batches until at least
 ``transitions`` transitions (by default D4RL's size, :func:`d4rl_transitions`); everything is a function of the
@@ -29,6 +33,8 @@ import time
 import jax
 import numpy as np
 
+from ..behavior import tradeoffs
+from ..behavior.networks import amateur_policy_step, policy_step
 from ..behavior.snapshots import load_policy, load_replay_policies, make_policy_rollout, replay_weights
 from ..caches import cache_dir
 from ..envs import check_dataset, env_spec, resolve_physics
@@ -37,13 +43,14 @@ from .d4rl import DatasetFile, open_d4rl, read_infos, save_d4rl
 from .dataset import DatasetError, Trajectories, concatenate, from_padded, pad_concat
 from .minari_io import PREFIX, open_minari
 
-NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert")
+NAMED_DATASETS = ("random", "medium", "medium-replay", "expert", "medium-expert", "mo-expert", "mo-amateur")
 # a recipe that changed gets a new file name, so no cache file recorded the old way stands in for the new one
 RECIPE_VERSION = {"medium-replay": 2}
 # D4RL's sizes (its -v2 files): medium, expert and random 1M; medium-replay the replay buffer up to the medium
 # policy; medium-expert is medium + expert, each of this size
 D4RL_TRANSITIONS = {"random": 1_000_000, "medium": 1_000_000, "expert": 1_000_000, "medium-expert": 1_000_000,
-                    "medium-replay": None}  # the env's own (EnvSpec.replay_transitions)
+                    "medium-replay": None,  # the env's own (EnvSpec.replay_transitions)
+                    "mo-expert": 1_000_000, "mo-amateur": 1_000_000}
 MAX_BATCH = 128  # episodes per rollout call (at most)
 
 
@@ -60,13 +67,13 @@ def dataset_path(env: str, dataset: str, transitions: int, horizon: int, seed: i
                         f"{env_spec(env).name}-{dataset}{version}-t{transitions}-h{horizon}-s{seed}{backend}.hdf5")
 
 
-def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None, physics: str = "auto"
-            ) -> tuple[Trajectories, dict]:
+def collect(env: str, actor_params, transitions: int, horizon: int, rng, bar=None, physics: str = "auto",
+            step=policy_step) -> tuple[Trajectories, dict]:
     """Whole episodes of one policy (``actor_params=None``: uniform random actions), batched, until they hold at
     least ``transitions`` transitions. Returns the episodes and their flat per-step ``infos``."""
     # enough episodes in one call when they average a quarter of the horizon; one compiled shape per call site
     batch = max(1, min(MAX_BATCH, 4 * math.ceil(transitions / horizon)))
-    run, actor_params = make_policy_rollout(env, actor_params, batch, horizon, physics)
+    run, actor_params = make_policy_rollout(env, actor_params, batch, horizon, physics, step)
     parts, total, i = [], 0, 0
     while total < transitions:
         ro = jax.device_get(run(actor_params, (), jax.random.fold_in(rng, i)))
@@ -92,12 +99,17 @@ def generate(env: str, dataset: str, transitions: int | None = None, horizon: in
     """Record the named ``dataset`` (not ``medium-expert``, which :func:`resolve_dataset` assembles)."""
     from tqdm import tqdm
 
+    step, labels = policy_step, None
     if dataset == "random":
         policies, weights = [None], [1.0]
     elif dataset in ("medium", "expert"):
         policies, weights = [load_policy(env, dataset)], [1.0]
     elif dataset == "medium-replay":
         policies, weights = [None, *load_replay_policies(env)], replay_weights(env)
+    elif dataset in ("mo-expert", "mo-amateur"):
+        family = tradeoffs.load_policies(env)
+        policies, labels, weights = [p for p, _ in family], [r["preference"] for _, r in family], [1.0] * len(family)
+        step = amateur_policy_step if dataset == "mo-amateur" else policy_step
     else:
         raise DatasetError(f"cannot record {dataset!r} directly; choose one of {list(NAMED_DATASETS)}")
     transitions = d4rl_transitions(env, dataset) if transitions is None else transitions
@@ -105,8 +117,10 @@ def generate(env: str, dataset: str, transitions: int | None = None, horizon: in
     rng = jax.random.PRNGKey(seed)
     with tqdm(total=sum(shares), disable=not verbose, unit="transition", unit_scale=True,
               desc=f"{env_spec(env).name}/{dataset}", dynamic_ncols=True, mininterval=1.0) as bar:
-        parts = [collect(env, p, n, horizon, jax.random.fold_in(rng, j), bar, physics)
+        parts = [collect(env, p, n, horizon, jax.random.fold_in(rng, j), bar, physics, step)
                  for j, (p, n) in enumerate(zip(policies, shares))]
+    for j, (data, infos) in enumerate(parts if labels else []):  # each transition's policy's preference
+        infos["preference"] = np.tile(np.asarray(labels[j], np.float32), (data.num_transitions, 1))
     return concatenate([d for d, _ in parts]), {k: np.concatenate([i[k] for _, i in parts]) for k in parts[0][1]}
 
 
