@@ -116,14 +116,14 @@ def test_choose_your_trade_off_runs_as_written(tmp_path, monkeypatch, capsys):
 
     section = readme().split("## Choose your trade-off")[1].split("\n## ")[0].split("\n### ")[0]
     commands = command_lines(section)
-    assert [c[2] for c in commands] == ["minsubdt_jax.train", "minsubdt_jax.evaluate", "minsubdt_jax.evaluate"]
+    assert [c[2] for c in commands] == ["minsubdt_jax.train"] + ["minsubdt_jax.evaluate"] * 3
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.chdir(tmp_path)
     small = ["--preset", "smoke", "--dataset-transitions", "3000", "--episode-length", "100"]
     assert train([w for w in commands[0][3:] if w != "study" and w != "--preset"] + small) == 0
     for c in commands[1:]:
         assert evaluate(c[3:] + ["--episodes", "3"]) == 0
-    assert len(os.listdir("runs/walker-vec/evaluations/minsubdt-vec")) == 2
+    assert len(os.listdir("runs/walker-vec/evaluations/minsubdt-vec")) == 3
     block = next(b for b in re.findall(r"```python\n(.*?)```", section, re.S))
     scope = {}
     exec(compile(block, "README.md Choose your trade-off", "exec"), scope)

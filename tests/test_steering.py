@@ -4,6 +4,7 @@ minsubdt_jax.evaluate``) and acts in a gymnasium loop (``load_policy``)."""
 
 import json
 import os
+import re
 
 import jax
 import jax.numpy as jnp
@@ -208,3 +209,50 @@ def test_loading_a_run_checks_it_as_a_resume_does(vec_run, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "the dataset differs from the one the run started on (sha256 000000000000" in err and err.count("\n") == 1
     assert sorted(os.listdir(other)) == before
+
+
+def test_a_preference_picks_the_datas_episode_that_serves_it_best():
+    """By hand: each episode's token is minus its per-metric terms; a preference picks the least weighted term, among
+    the episodes labelled nearest it where the data has labels."""
+    from types import SimpleNamespace
+
+    from minsubdt_jax.targets import parse_preference, preference_target
+
+    terms = np.array([[0.1, 0.9], [0.5, 0.4], [0.9, 0.05], [0.3, 0.3]])  # [N, K], lower is better
+    prep = SimpleNamespace(sampler=SimpleNamespace(returns_to_go=-terms[:, None, :] / 2.0), rtg_scale=2.0)
+    pick = lambda w, labels=None: preference_target(prep, np.array(w), labels)[1]  # noqa: E731
+    assert [pick([1, 0]), pick([0, 1]), pick([0.5, 0.5])] == [0, 2, 3]
+    np.testing.assert_allclose(preference_target(prep, np.array([0.5, 0.5]))[0], [-0.3, -0.3])
+    labels = np.array([[0.9, 0.1], [0.5, 0.5], [0.9, 0.1], [0.1, 0.9]])
+    assert pick([0.5, 0.5], labels) == 1 and pick([0.8, 0.2], labels) == 0  # only the nearest label's episodes
+    names = ["x_velocity", "energy@lived"]
+    np.testing.assert_allclose(parse_preference("3,1", names), [0.75, 0.25])
+    np.testing.assert_allclose(parse_preference({"energy@lived": 2}, names), [0.0, 1.0])
+    for bad, says in [("1", "1 weight(s) for the run's 2 metrics"), ("x_velocity=-1", "must be >= 0"),
+                      ("0,0", "not all 0"), ("speed=1", "not a metric of the run"), ("x_velocity=1,x_velocity=2",
+                                                                                      "repeated")]:
+        with pytest.raises(ValueError, match=re.escape(says)):
+            parse_preference(bad, names)
+
+
+def test_evaluate_and_load_policy_take_a_preference(vec_run, capsys):
+    """``--preference`` conditions on a data episode's own token (its terms within [0, beta]), written beside the run
+    as ``pref-...``; a bad one, or one beside ``--target``, is one error line."""
+    from minsubdt_jax.evaluate import load_policy, load_run, main
+    from minsubdt_jax.targets import preference_target
+
+    assert main([vec_run, "--preference", "x_velocity=1", "--episodes", "3"]) == 0
+    with open(os.path.join(vec_run, "evaluations", "minsubdt-vec", "pref-x_velocity=1,energy@lived=0.json")) as f:
+        ev = json.load(f)
+    prep = load_run(vec_run).per_model[0]
+    token, i = preference_target(prep, np.array([1.0, 0.0]))
+    assert ev["preference"] == {"x_velocity": 1.0, "energy@lived": 0.0}
+    assert ev["target"] == pytest.approx({"x_velocity": -float(token[0]), "energy@lived": -float(token[1])})
+    assert 0.0 <= ev["target"]["x_velocity"] <= min(-prep.sampler.returns_to_go[:, 0, 0] * prep.rtg_scale) + 1e-6
+    np.testing.assert_allclose(load_policy(vec_run, preference={"x_velocity": 1}).target, token)
+    capsys.readouterr()
+    for argv, says in [(["--preference", "2,1,1"], "3 weight(s)"), (["--preference", "1,1", "--target", "0.5"],
+                                                                     "not both")]:
+        assert main([vec_run, *argv, "--episodes", "3"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error:") and says in err and err.count("\n") == 1, err

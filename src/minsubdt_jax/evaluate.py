@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import os
 import sys
 
@@ -45,6 +44,7 @@ from .program import evaluate_models, program_models
 from .rundir import (COST_METRICS_FILE, DATASET_FILE, check_same_data, check_same_metrics, exit_code, json_text,
                      write_atomic)
 from .runsetup import prepare_each, program_agent, restore_latest
+from .targets import parse_preference, target_token
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,44 +89,6 @@ def load_run(run_dir: str, metrics=None) -> LoadedRun:
     return LoadedRun(cfg, agent, models, eval_params(state), per_model, recorded["dynamics"], int(mngr.latest_step()))
 
 
-def parse_target(text, method, prep, beta: float, flag: str = "--target"):
-    """The return token for ``text`` (``"name=v,name=v"``, a ``{name: v}`` mapping, or one number for a method
-    with one return token) under ``method``: ``[K]`` for a vector method (``-v`` per metric, the default where a
-    metric is left out), else a float. One ValueError on an unknown metric, a repeated one, a value out of range or
-    not a number, naming ``flag`` (the library's ``target`` argument, or the command's ``--target``)."""
-    names = [m.name for m in prep.metrics]
-    if not method.vector:
-        return _number(text, flag)
-    if not isinstance(text, dict) and not all("=" in p for p in str(text).split(",")):
-        raise ValueError(f"{flag} {text}: {method.name} takes name=value per metric (comma-separated), for some of "
-                         f"{names}")
-    pairs = list(text.items()) if isinstance(text, dict) else [p.rpartition("=")[::2] for p in str(text).split(",")]
-    bound = beta if method.target_bound == "beta" else 1.0
-    token = np.array(prep.target_return, np.float32)
-    seen = set()
-    for name, v in pairs:
-        if name not in names or name in seen:
-            raise ValueError(f"{flag}: {name!r} is {'repeated' if name in seen else 'not a metric of the run'}; "
-                             f"give name=value for some of {names}")
-        seen.add(name)
-        v = _number(v, f"{flag} {name}")
-        if not 0.0 <= v <= bound:
-            what = "eq. 2's per-metric term, 0 to the margin beta" if method.target_bound == "beta" else "a cost in [0, 1]"
-            raise ValueError(f"{flag} {name}={v:g}: {method.name}'s target is {what} ({bound:g})")
-        token[names.index(name)] = -v
-    return token
-
-
-def _number(v, what: str) -> float:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what}: not a number: {v!r}") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{what}: must be finite, got {v!r}")
-    return x
-
-
 def _select(run: LoadedRun, method: str | None, seed: int | None = None) -> list[int]:
     names = [mo.method.name for mo in run.models]
     if method is None and len(set(names)) > 1:
@@ -140,19 +102,19 @@ def _select(run: LoadedRun, method: str | None, seed: int | None = None) -> list
 
 
 def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | None = None, metrics=None,
-                 write: bool = True, run: LoadedRun | None = None) -> dict:
+                 write: bool = True, run: LoadedRun | None = None, preference=None) -> dict:
     """Roll out every seed of ``method`` (the run's one, by default) in ``run_dir`` conditioned on ``target``
-    (:func:`parse_target`; None: the run's own, that of its final evaluation) for ``episodes`` episodes each; the
-    result (per seed and across seeds, as ``results.json``'s) is written to
-    ``RUN_DIR/evaluations/<method>/<target>.json`` and returned."""
+    (:func:`~minsubdt_jax.targets.parse_target`), or on a ``preference`` over the cost metrics mapped onto the data's
+    front (:func:`~minsubdt_jax.targets.preference_target`), else the run's own target, that of its final
+    evaluation, for ``episodes`` episodes each; the result (per seed and across seeds, as ``results.json``'s) is
+    written to ``RUN_DIR/evaluations/<method>/<target>.json`` (``pref-<preference>.json``) and returned."""
     run = run or load_run(run_dir, metrics)
     idx = _select(run, method)
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
     check_rollout_memory(run.per_model[idx[0]], len(idx), episodes, run.cfg.episode_length)
     m = run.models[idx[0]].method
-    token = (run.per_model[idx[0]].target_return if target is None
-             else parse_target(target, m, run.per_model[idx[0]], run.cfg.beta))
+    token = target_token(m, run.per_model[idx[0]], run.cfg.beta, target, preference)
     per_model = [dataclasses.replace(run.per_model[i], target_return=token) for i in idx]
     mesh = make_mesh(run.cfg.devices, batch_size_of(m.agent, run.cfg))
     params = jax.tree.map(lambda x: x[np.asarray(idx)], run.params)
@@ -162,8 +124,11 @@ def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | N
     asked = ({n: 0.0 - float(v) for n, v in zip(names, np.atleast_1d(token))} if m.vector else float(token))
     out = {"run": run_dir, "method": m.name, "checkpoint_step": run.step, "target": asked, "episodes": episodes,
            "eval": per[0] if len(per) == 1 else across_seeds(per), "eval_per_model": per}
+    if preference is not None:
+        out["preference"] = dict(zip(names, parse_preference(preference, names).tolist()))
     if write:
-        label = ",".join(f"{n}={v:g}" for n, v in asked.items()) if m.vector else f"{asked:g}"
+        label = ",".join(f"{n}={v:g}" for n, v in (out.get("preference") or asked).items()) if m.vector else f"{asked:g}"
+        label = ("pref-" if preference is not None else "") + label
         os.makedirs(os.path.join(run_dir, "evaluations", m.name), exist_ok=True)
         write_atomic(os.path.join(run_dir, "evaluations", m.name, label + ".json"), json_text(out, indent=2))
     return out
@@ -217,13 +182,13 @@ class Policy:
 
 
 def load_policy(run_dir: str, target=None, method: str | None = None, seed: int | None = None,
-                metrics=None) -> Policy:
+                metrics=None, preference=None) -> Policy:
     """The policy of the run's model of ``method`` and ``seed`` (the run's first seed by default) conditioned on
-    ``target`` (:func:`parse_target`; None: the method's default)."""
+    ``target`` (:func:`~minsubdt_jax.targets.parse_target`) or ``preference`` (weights over the cost metrics:
+    :func:`~minsubdt_jax.targets.preference_target`); neither: the method's default."""
     run = load_run(run_dir, metrics)
     i = _select(run, method, seed)[0]
-    m, p = run.models[i].method, run.per_model[i]
-    return Policy(run, i, p.target_return if target is None else parse_target(target, m, p, run.cfg.beta, "target"))
+    return Policy(run, i, target_token(run.models[i].method, run.per_model[i], run.cfg.beta, target, preference, ""))
 
 
 def main(argv=None) -> int:
@@ -232,12 +197,15 @@ def main(argv=None) -> int:
     ap.add_argument("run_dir", help="a run directory (python -m minsubdt_jax.train ... --out RUN_DIR)")
     ap.add_argument("--target", help="name=value per cost metric (comma-separated) for minsubdt-vec and dt-vec; one "
                     "number for a method with one return token (default: the run's own target)")
+    ap.add_argument("--preference", help="weights over the cost metrics (name=w,... or w1,w2 in the run's metric "
+                    "order) for minsubdt-vec and dt-vec: the target is the return token of the data's episode that "
+                    "serves them best (minsubdt_jax.targets)")
     ap.add_argument("--episodes", type=int, default=100, help="episodes per seed (100)")
     ap.add_argument("--method", help="the method to evaluate, for a run that trained several")
     a = ap.parse_args(argv)
 
     def run():
-        out = evaluate_run(a.run_dir, a.target, a.episodes, a.method)
+        out = evaluate_run(a.run_dir, a.target, a.episodes, a.method, preference=a.preference)
         e = out["eval"]
         at = (",".join(f"{k}={v:g}" for k, v in out["target"].items()) if isinstance(out["target"], dict)
               else f"{out['target']:g}")
