@@ -216,13 +216,15 @@ def test_a_preference_picks_the_datas_episode_that_serves_it_best():
     the episodes labelled nearest it where the data has labels."""
     from types import SimpleNamespace
 
-    from minsubdt_jax.targets import parse_preference, preference_target
+    from minsubdt_jax.targets import episode_tokens, parse_preference, preference_target
 
     terms = np.array([[0.1, 0.9], [0.5, 0.4], [0.9, 0.05], [0.3, 0.3]])  # [N, K], lower is better
     prep = SimpleNamespace(sampler=SimpleNamespace(returns_to_go=-terms[:, None, :] / 2.0), rtg_scale=2.0)
-    pick = lambda w, labels=None: preference_target(prep, np.array(w), labels)[1]  # noqa: E731
+    tokens = episode_tokens(prep)
+    np.testing.assert_allclose(tokens, -terms)
+    pick = lambda w, labels=None: preference_target(tokens, np.array(w), labels)[1]  # noqa: E731
     assert [pick([1, 0]), pick([0, 1]), pick([0.5, 0.5])] == [0, 2, 3]
-    np.testing.assert_allclose(preference_target(prep, np.array([0.5, 0.5]))[0], [-0.3, -0.3])
+    np.testing.assert_allclose(preference_target(tokens, np.array([0.5, 0.5]))[0], [-0.3, -0.3])
     labels = np.array([[0.9, 0.1], [0.5, 0.5], [0.9, 0.1], [0.1, 0.9]])
     assert pick([0.5, 0.5], labels) == 1 and pick([0.8, 0.2], labels) == 0  # only the nearest label's episodes
     names = ["x_velocity", "energy@lived"]
@@ -239,13 +241,13 @@ def test_evaluate_and_load_policy_take_a_preference(vec_run, capsys):
     """``--preference`` conditions on a data episode's own token (its terms within [0, beta]), written beside the run
     as ``pref-...``; a bad one, or one beside ``--target``, is one error line."""
     from minsubdt_jax.evaluate import load_policy, load_run, main
-    from minsubdt_jax.targets import preference_target
+    from minsubdt_jax.targets import episode_tokens, preference_target
 
     assert main([vec_run, "--preference", "x_velocity=1", "--episodes", "3"]) == 0
     with open(os.path.join(vec_run, "evaluations", "minsubdt-vec", "pref-x_velocity=1,energy@lived=0.json")) as f:
         ev = json.load(f)
     prep = load_run(vec_run).per_model[0]
-    token, i = preference_target(prep, np.array([1.0, 0.0]))
+    token, i = preference_target(episode_tokens(prep), np.array([1.0, 0.0]))
     assert ev["preference"] == {"x_velocity": 1.0, "energy@lived": 0.0}
     assert ev["target"] == pytest.approx({"x_velocity": -float(token[0]), "energy@lived": -float(token[1])})
     assert 0.0 <= ev["target"]["x_velocity"] <= min(-prep.sampler.returns_to_go[:, 0, 0] * prep.rtg_scale) + 1e-6

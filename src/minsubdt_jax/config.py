@@ -22,7 +22,8 @@ class Config:
     # a named dataset (see minsubdt_jax.data.NAMED_DATASETS) or a D4RL .hdf5 path; several, comma-separated, train
     # in one program (one env's: every model draws only its own dataset's episodes)
     dataset: str = "medium"
-    # minsubdt | minsubdt-learned | dt | dt-total | dt-tied | minsubdt-vec | dt-vec | bc | bc-mlp | iql | td3bc | cql |
+    # minsubdt | minsubdt-learned | dt | dt-total | dt-tied | minsubdt-vec | dt-vec | modt-p | morvs-p | bc-p | bc |
+    # bc-mlp | iql | td3bc | cql |
     # brac-v | bear | awr | minsubdt-iql | minsubdt-td3bc | minsubdt-iql-spread | minsubdt-td3bc-spread | minsubdt-cql |
     # minsubdt-brac-v | minsubdt-bear | minsubdt-awr: see
     # minsubdt_jax.methods (--returns subdom|learned|true|none still names the first four). Several,
@@ -248,9 +249,9 @@ def _check_names(cfg: Config) -> None:
         raise ValueError(f"--dataset must be one or several (comma-separated, each once) datasets, got {cfg.dataset!r}")
     if len(agents) > 1:
         raise ValueError(f"methods trained in one program must share an agent; {cfg.method!r} mixes {sorted(agents)}")
-    if len({METHODS[m].vector for m in cfg.methods}) > 1:
-        raise ValueError(f"--method {cfg.method}: a return token per metric and one return token make two different "
-                         f"models: train them apart")
+    if len({METHODS[m].vector for m in cfg.methods}) > 1 or len({METHODS[m].preference for m in cfg.methods}) > 1:
+        raise ValueError(f"--method {cfg.method}: a return token per metric and one return token, or states with and "
+                         f"without a preference, make two different models: train them apart")
     if cfg.costs is not None:
         check_costs(cfg.env, cfg.costs)  # one error on an unknown name or a metric the env cannot compute
     logger_names(cfg.logger)

@@ -114,8 +114,8 @@ def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | N
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
     check_rollout_memory(run.per_model[idx[0]], len(idx), episodes, run.cfg.episode_length)
     m = run.models[idx[0]].method
-    token = target_token(m, run.per_model[idx[0]], run.cfg.beta, target, preference)
-    per_model = [dataclasses.replace(run.per_model[i], target_return=token) for i in idx]
+    token, omega = target_token(m, run.per_model[idx[0]], run.cfg.beta, target, preference)
+    per_model = [dataclasses.replace(run.per_model[i], target_return=token, preference=omega) for i in idx]
     mesh = make_mesh(run.cfg.devices, batch_size_of(m.agent, run.cfg))
     params = jax.tree.map(lambda x: x[np.asarray(idx)], run.params)
     per = evaluate_models(run.cfg, run.agent, params, [run.models[i] for i in idx], per_model, mesh, episodes,
@@ -150,13 +150,14 @@ class Policy:
     step's, which a DT on true returns subtracts from its return-to-go), its context kept between calls;
     ``reset()`` before each episode."""
 
-    def __init__(self, run: LoadedRun, i: int, token):
+    def __init__(self, run: LoadedRun, i: int, token, preference=None):
         p = run.per_model[i]
-        self.agent, self.target = run.agent, token
+        self.agent, self.target, self.preference = run.agent, token, preference
         self.inputs = PolicyInputs(params=jax.tree.map(lambda x: x[i], run.params), state_mean=jnp.asarray(p.state_mean),
                                    state_std=jnp.asarray(p.state_std), target_return=jnp.asarray(token, jnp.float32),
                                    rtg_scale=jnp.float32(p.rtg_scale),
-                                   subtract_rewards=jnp.float32(run.models[i].method.subtract_rewards))
+                                   subtract_rewards=jnp.float32(run.models[i].method.subtract_rewards),
+                                   preference=None if preference is None else jnp.asarray(preference, jnp.float32))
         self._act = jax.jit(run.agent.policy)
         self.reset()
 
@@ -166,7 +167,7 @@ class Policy:
     def __call__(self, obs, reward: float = 0.0) -> np.ndarray:
         """The action ``[act]`` for ``obs [obs_dim]`` after ``reward``; ValueError on any other shape or a value
         that is not finite (the model would answer NaN)."""
-        want = tuple(self.inputs.state_mean.shape)
+        want = (self.inputs.state_mean.shape[-1] - (0 if self.preference is None else len(self.preference)),)
         obs = np.asarray(obs, np.float32)
         if obs.shape != want:
             raise ValueError(f"the policy takes an observation of shape {want}, got {obs.shape}")
@@ -188,7 +189,7 @@ def load_policy(run_dir: str, target=None, method: str | None = None, seed: int 
     :func:`~minsubdt_jax.targets.preference_target`); neither: the method's default."""
     run = load_run(run_dir, metrics)
     i = _select(run, method, seed)[0]
-    return Policy(run, i, target_token(run.models[i].method, run.per_model[i], run.cfg.beta, target, preference, ""))
+    return Policy(run, i, *target_token(run.models[i].method, run.per_model[i], run.cfg.beta, target, preference, ""))
 
 
 def main(argv=None) -> int:

@@ -105,6 +105,10 @@ class Method:
       vector: the return token is a K-vector, one entry per cost metric (a DT agent's only); its evaluation target
         is a vector too, each entry in ``[0, target_bound]`` (0: the best), the token its negation.
       target_bound: ``"beta"`` (eq. 2's per-metric term is at most the margin) or ``"cost"`` (a cost, at most 1).
+      preference: each state carries its episode's preference label ``[K]`` (``infos/preference`` of a
+        multi-preference recording, ``mo-expert``), PEDA's "(P)" conditioning (Zhu et al. 2023; PEDA appends it to
+        the return and action tokens too, we to the state alone); evaluated at a preference
+        (:mod:`minsubdt_jax.targets`).
     """
 
     name: str
@@ -119,6 +123,7 @@ class Method:
     episodic: bool = False
     vector: bool = False
     target_bound: str = "beta"
+    preference: bool = False
 
     def scale(self, returns) -> float:
         """The divisor of the return tokens and rewards for a dataset whose episodes have ``returns [N]`` (of this
@@ -154,6 +159,11 @@ METHODS = {m.name: m for m in (
            _per_metric(lambda sub, costs: sub.per_feature), vector=True),
     Method("dt-vec", "DT (a cost token per metric)", "dt", "engineered", _per_metric(lambda sub, costs: costs),
            target_from_data=True, vector=True, target_bound="cost"),
+    Method("modt-p", "MODT(P) (PEDA)", "dt", "engineered", _per_metric(lambda sub, costs: costs),
+           target_from_data=True, vector=True, target_bound="cost", preference=True),
+    Method("morvs-p", "MORvS(P) (PEDA)", "mlp", "engineered", _per_metric(lambda sub, costs: costs),
+           target_from_data=True, vector=True, target_bound="cost", preference=True),
+    Method("bc-p", "BC(P) (PEDA)", "mlp", "engineered", _zero, preference=True),
     Method("bc", "BC (DT architecture)", "dt", "engineered", _zero, returns_alias="none"),
     Method("bc-mlp", "BC (MLP)", "mlp", "engineered", _zero),
     Method("iql", "IQL", "iql", "engineered", _true, rtg_scale=None),

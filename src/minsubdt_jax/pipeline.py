@@ -3,6 +3,7 @@ leave-one-out) -> the method's return tokens -> the sampler's device arrays. One
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +15,7 @@ from .learned_costs import LearnedCostConfig, LearnedCosts, train_learned_costs
 from .methods import Method
 from .references import References, references_for
 from .subdominance import min_subdominance, returns_to_go
+from .targets import episode_labels, preference_target
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,9 @@ class Prepared:
       dynamics: the env rules the data is scored and evaluated in.
       references: the normalisation its scores use: the dataset's own where it brings them, else the dynamics'
         (:func:`~minsubdt_jax.references.references_for`).
+      preference, preference_labels: for a preference-conditioned method (``Method.preference``) the evaluation's
+        preference ``[K]`` (the labels' mean) and each episode's label ``[N, K]``, appended to its states (the
+        state normalisation leaves them as they are: mean 0, std 1); else None.
     """
 
     source: DatasetFile
@@ -49,6 +54,8 @@ class Prepared:
     dynamics: str = "brax"
     metrics: tuple[CostMetric, ...] = ()
     references: References | None = None
+    preference: np.ndarray | None = None
+    preference_labels: np.ndarray | None = None
 
     def summary(self, env: str) -> dict:
         """The dataset block of ``results.json``."""
@@ -126,16 +133,40 @@ def prepare(cfg: Config, method: Method, verbose: bool = True, source: DatasetFi
     rtg = np.asarray(returns_to_go(rewards, dataset.lengths)) / rtg_scale
     if not np.isfinite(rtg).all():
         raise ValueError(f"{path}: the returns-to-go overflow float32 (divided by --rtg-scale {rtg_scale})")
+    labels = _preference_labels(source, method, len(metrics)) if method.preference else None
+    states, preference = dataset, None
+    if labels is not None:  # PEDA's "(P)": each state carries its episode's preference, left unnormalised
+        k = labels.shape[1]
+        states = dataclasses.replace(dataset, observations=np.concatenate(
+            [dataset.observations, np.broadcast_to(labels[:, None], dataset.observations.shape[:2] + (k,))], -1))
+        mean, std = np.concatenate([mean, np.zeros(k, np.float32)]), np.concatenate([std, np.ones(k, np.float32)])
+        preference = (labels.mean(0) / labels.mean(0).sum()).astype(np.float32)
+        if method.vector and cfg.target_return is None:  # the data's episode that serves it best (targets)
+            target = preference_target(rtg[:, 0] * rtg_scale, preference, labels)[0]
     prep = Prepared(source=source, costs=costs, features=features, learned=learned, min_subdominance=ms,
-                    sampler=sampler_data(dataset, rtg, mean, std, rewards.reshape(rewards.shape[:2] + (-1,)).sum(-1)
+                    sampler=sampler_data(states, rtg, mean, std, rewards.reshape(rewards.shape[:2] + (-1,)).sum(-1)
                                          / rtg_scale,
                                          np.ones_like(dataset.terminals) if method.episodic else dataset.terminals),
                     state_mean=mean, state_std=std, rtg_scale=rtg_scale,
                     target_return=target, dynamics=dynamics, metrics=metrics,
-                    references=references_for(cfg.env, dynamics, source.references))
+                    references=references_for(cfg.env, dynamics, source.references), preference=preference,
+                    preference_labels=labels)
     if verbose:
         _report(prep, cfg)
     return prep
+
+
+def _preference_labels(source: DatasetFile, method: Method, k: int) -> np.ndarray:
+    """``[N, K]`` the episodes' preference labels a preference-conditioned method reads; one ValueError where the
+    data has none or they weigh another number of objectives than the run's ``k`` cost metrics."""
+    labels = episode_labels(source)
+    if labels is None:
+        raise ValueError(f"--method {method.name} conditions on each episode's preference, and {source.path} has no "
+                         f"infos/preference: record a multi-preference dataset (--dataset mo-expert or mo-amateur)")
+    if labels.shape[1] != k:
+        raise ValueError(f"--method {method.name}: the data's preferences weigh {labels.shape[1]} objectives and the "
+                         f"run has {k} cost metrics; choose as many (--costs x_velocity,energy@lived)")
+    return labels.astype(np.float32)
 
 
 def _report(prep: Prepared, cfg: Config) -> None:

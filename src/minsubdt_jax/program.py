@@ -114,7 +114,8 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
     inputs = PolicyInputs(params=params, state_mean=stack(lambda p: p.state_mean),
                           state_std=stack(lambda p: p.state_std), target_return=stack(lambda p: p.target_return),
                           rtg_scale=stack(lambda p: p.rtg_scale),
-                          subtract_rewards=np.array([mo.method.subtract_rewards for mo in models], np.float32))
+                          subtract_rewards=np.array([mo.method.subtract_rewards for mo in models], np.float32),
+                          preference=None if per_model[0].preference is None else stack(lambda p: p.preference))
     learned = [p.learned for p in per_model] if any(p.learned for p in per_model) else None
     scoring = Scoring(demo_costs=per_model[0].costs, beta=cfg.beta, alpha_max=cfg.alpha_max, learned=learned,
                       demo_features=[p.features for p in per_model] if learned else None, metrics=per_model[0].metrics,
@@ -123,7 +124,8 @@ def evaluate_models(cfg, agent, params, models: list, per_model: list[Prepared],
     evs = evaluate_policy(cfg.env, agent, replicate(inputs, mesh), num_episodes=episodes, horizon=cfg.episode_length,
                           seeds=[mo.seed + 10_000 for mo in models], scoring=scoring, mesh=mesh, physics=physics,
                           threads=cfg.physics_threads)
-    return [dict(ev.summary(), **mo.record(), target_return=np.asarray(p.target_return).tolist())
+    return [dict(ev.summary(), **mo.record(), target_return=np.asarray(p.target_return).tolist(),
+                 **({} if p.preference is None else {"preference": np.asarray(p.preference).tolist()}))
             for ev, mo, p in zip(evs, models, per_model)]
 
 

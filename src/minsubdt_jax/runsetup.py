@@ -185,8 +185,8 @@ def prepare_each(cfg: Config, models: list, sources: list, dynamics: str, metric
 def program_agent(cfg: Config, methods: list, sources: list, n_metrics: int):
     """The agent of a program of ``methods`` on ``sources``, sized for their data and longest episode; a DT with a
     return token per metric (``n_metrics`` of them) for a vector method."""
-    data = sources[0].data
-    return make_agent(methods[0].agent, cfg, data.obs_dim, data.act_dim,
+    data = sources[0].data  # a preference-conditioned method's states carry the preference, one weight per metric
+    return make_agent(methods[0].agent, cfg, data.obs_dim + (n_metrics if methods[0].preference else 0), data.act_dim,
                       max([cfg.episode_length] + [src.data.max_len for src in sources]),
                       return_dim=n_metrics if methods[0].vector else 0)
 

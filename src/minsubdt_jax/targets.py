@@ -82,24 +82,30 @@ def parse_preference(text, names: list[str], flag: str = "--preference") -> np.n
     return w / w.sum()
 
 
-def episode_labels(prep) -> np.ndarray | None:
-    """``[N, K]`` each episode's preference label (``infos/preference`` at its first step), or None where the data
-    has none (a file without the label, a Minari dataset)."""
-    path = prep.source.path
+def episode_labels(source) -> np.ndarray | None:
+    """``[N, K]`` each episode's preference label (``infos/preference`` at its first step) of a
+    :class:`~minsubdt_jax.data.DatasetFile`, or None where the data has none (a file without it, a Minari dataset)."""
+    path = source.path
     if not (isinstance(path, str) and path.endswith((".hdf5", ".h5")) and os.path.exists(path)):
         return None
     pref = read_infos(path).get("preference")
     if pref is None:
         return None
-    starts = np.concatenate([[0], np.cumsum(prep.source.data.lengths)[:-1]]).astype(int)
+    starts = np.concatenate([[0], np.cumsum(source.data.lengths)[:-1]]).astype(int)
     return np.asarray(pref)[starts]
 
 
-def preference_target(prep, omega: np.ndarray, labels: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """``(token [K], episode)``: the return token of the data's episode that best serves ``omega`` (module docstring),
-    and that episode's index. ``prep``: a vector method's :class:`~minsubdt_jax.pipeline.Prepared`; ``labels``:
-    ``[N, K']`` the episodes' preferences, or None."""
-    tokens = np.asarray(prep.sampler.returns_to_go)[:, 0] * prep.rtg_scale  # [N, K]: each episode's -terms
+def episode_tokens(prep) -> np.ndarray:
+    """``[N, K]`` each episode's own return token (its first step's, unscaled) under a vector method's ``prep``."""
+    return np.asarray(prep.sampler.returns_to_go)[:, 0] * prep.rtg_scale
+
+
+def preference_target(tokens: np.ndarray, omega: np.ndarray, labels: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, int]:
+    """``(token [K], episode)``: of the episodes' return tokens ``tokens [N, K]`` (each minus its per-metric terms),
+    the one of the episode that best serves ``omega`` (module docstring), and its index; ``labels``: ``[N, K']`` the
+    episodes' preferences, or None."""
+    tokens = np.asarray(tokens)
     cand = np.arange(len(tokens))
     if labels is not None:
         if labels.shape[1] != len(omega):
@@ -111,18 +117,21 @@ def preference_target(prep, omega: np.ndarray, labels: np.ndarray | None = None)
     return tokens[best].astype(np.float32), int(best)
 
 
-def target_token(method, prep, beta: float, target=None, preference=None, flag: str = "--") -> np.ndarray | float:
-    """The return token a run's model is evaluated at: ``target`` (:func:`parse_target`), else ``preference``
-    (:func:`preference_target`), else the run's own; ``flag`` prefixes the argument names in errors (``--`` for the
-    command, ``""`` for the library)."""
+def target_token(method, prep, beta: float, target=None, preference=None, flag: str = "--") -> tuple:
+    """``(token, preference)``: the return token a run's model is evaluated at, ``target`` (:func:`parse_target`),
+    else ``preference`` (:func:`preference_target`), else the run's own; and the preference ``[K]`` its states carry
+    (a preference-conditioned method's: the one given, else the run's own; else None). ``flag`` prefixes the argument
+    names in errors (``--`` for the command, ``""`` for the library)."""
     if target is not None and preference is not None:
         raise ValueError(f"give {flag}target or {flag}preference, not both")
     if target is not None:
-        return parse_target(target, method, prep, beta, f"{flag}target")
+        return parse_target(target, method, prep, beta, f"{flag}target"), prep.preference
     if preference is None:
-        return prep.target_return
-    if not method.vector:
+        return prep.target_return, prep.preference
+    if not (method.vector or method.preference):
         raise ValueError(f"{flag}preference: {method.name} has one return token; a preference needs a token per "
-                         f"cost metric (minsubdt-vec, dt-vec)")
+                         f"cost metric (minsubdt-vec, dt-vec) or a preference-conditioned method (bc-p)")
     omega = parse_preference(preference, [m.name for m in prep.metrics], f"{flag}preference")
-    return preference_target(prep, omega, episode_labels(prep))[0]
+    labels = prep.preference_labels if prep.preference_labels is not None else episode_labels(prep.source)
+    token = preference_target(episode_tokens(prep), omega, labels)[0] if method.vector else prep.target_return
+    return token, (omega.astype(np.float32) if method.preference else None)

@@ -91,7 +91,7 @@ def deterministic_policy(actor, kind: str):
     ``"tanh_mean"`` (``tanh`` of the pre-squash mean, SAC/CQL): every reference evaluates deterministically."""
 
     def policy(p: PolicyInputs, carry, obs, prev_reward, t, rng):
-        out = actor.apply(p.params["actor"], (obs - p.state_mean) / p.state_std)
+        out = actor.apply(p.params["actor"], p.normalise(obs))
         action = out if kind == "action" else out[0] if kind == "mean" else jnp.tanh(out[0])
         return carry, action
 

@@ -60,9 +60,10 @@ def eval_params(state: TrainState):
 
 @struct.dataclass
 class PolicyInputs:
-    """Traced inputs of a rollout policy: the agent's ``params``, state normalisation ``[obs]``, the target
-    return (unscaled), the return scale, and whether rewards are subtracted from the return-to-go (1.0 for
-    true returns). Policies that do not condition on a return ignore the last three."""
+    """Traced inputs of a rollout policy: the agent's ``params``, state normalisation ``[obs]`` (``[obs + K]`` with a
+    preference), the target return (unscaled), the return scale, and whether rewards are subtracted from the
+    return-to-go (1.0 for true returns); for a preference-conditioned method (PEDA's "(P)", ``Method.preference``)
+    the preference ``[K]`` its states carry. Policies that do not condition on a return ignore those three."""
 
     params: Any
     state_mean: jax.Array
@@ -70,6 +71,14 @@ class PolicyInputs:
     target_return: jax.Array
     rtg_scale: jax.Array
     subtract_rewards: jax.Array
+    preference: Any = None
+
+    def normalise(self, obs):
+        """``obs [..., obs]`` as the model sees a state: the preference appended (if any), then normalised."""
+        if self.preference is not None:
+            obs = jnp.concatenate([obs, jnp.broadcast_to(self.preference, obs.shape[:-1] + self.preference.shape[-1:])],
+                                  -1)
+        return (obs - self.state_mean) / self.state_std
 
 
 class Agent(Protocol):

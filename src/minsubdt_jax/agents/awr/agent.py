@@ -136,7 +136,7 @@ class AWRAgent(TransitionAgent):
 @functools.lru_cache(maxsize=None)
 def awr_policy(actor: Net):
     def policy(p: PolicyInputs, carry, obs, prev_reward, t, rng):
-        return carry, jnp.clip(actor.apply(p.params["actor"], (obs - p.state_mean) / p.state_std), -1.0, 1.0)
+        return carry, jnp.clip(actor.apply(p.params["actor"], p.normalise(obs)), -1.0, 1.0)
 
     return policy
 

@@ -74,7 +74,7 @@ def best_of_q_policy(actor, critic, n: int):
     """Sample ``n`` actions from the policy at each state and take the one the first critic values most."""
 
     def policy(p: PolicyInputs, carry, obs, prev_reward, t, rng):
-        s = (obs - p.state_mean) / p.state_std
+        s = p.normalise(obs)
         mean, log_std = actor.apply(p.params["actor"], s)
         a = jnp.tanh(mean + jnp.exp(log_std) * jax.random.normal(rng, (n, *mean.shape)))  # [n, B, act]
         q = critic.apply(p.params["critic"], jnp.broadcast_to(s, (n, *s.shape)), a)[0]  # [n, B]

@@ -54,7 +54,7 @@ def dt_policy(model: DecisionTransformer):
         rtg = jnp.where(t == 0, p.target_return, last_rtg - paid)
         n = obs.shape[0]
         ctx = Context(
-            states=push(ctx.states, (obs - p.state_mean) / p.state_std),
+            states=push(ctx.states, p.normalise(obs)),
             actions=push(ctx.actions, jnp.zeros((n, ctx.actions.shape[-1]))),
             returns_to_go=push(ctx.returns_to_go, jnp.broadcast_to(rtg, last_rtg.shape)),
             timesteps=push(ctx.timesteps, jnp.full((n,), t, jnp.int32)),
