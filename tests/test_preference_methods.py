@@ -108,3 +108,7 @@ def test_evaluate_modt_p_at_a_preference(runs, capsys):
     with open(os.path.join(runs["modt-p"], "results.json")) as f:
         res = json.load(f)
     np.testing.assert_allclose(res["eval"]["preference"], prep.preference, rtol=1e-6)
+    for w in ("1,0", "0,1"):  # a one-token method's evaluations at two preferences are two files
+        assert main([runs["bc-p"], "--preference", w, "--episodes", "3"]) == 0
+    assert sorted(os.listdir(os.path.join(runs["bc-p"], "evaluations", "bc-p"))) == [
+        "pref-x_velocity=0,energy@lived=1.json", "pref-x_velocity=1,energy@lived=0.json"]

@@ -127,7 +127,8 @@ def evaluate_run(run_dir: str, target=None, episodes: int = 100, method: str | N
     if preference is not None:
         out["preference"] = dict(zip(names, parse_preference(preference, names).tolist()))
     if write:
-        label = ",".join(f"{n}={v:g}" for n, v in (out.get("preference") or asked).items()) if m.vector else f"{asked:g}"
+        shown = out.get("preference") or (asked if m.vector else None)  # a preference names its file (bc-p too)
+        label = ",".join(f"{n}={v:g}" for n, v in shown.items()) if shown else f"{asked:g}"
         label = ("pref-" if preference is not None else "") + label
         os.makedirs(os.path.join(run_dir, "evaluations", m.name), exist_ok=True)
         write_atomic(os.path.join(run_dir, "evaluations", m.name, label + ".json"), json_text(out, indent=2))
